@@ -1,0 +1,164 @@
+"""Headless OpenGL contexts: EGL (default), OSMesa (fallback) or an existing window.
+
+The backend is chosen by argument, else by the ``GLSYNTH_GL_BACKEND`` environment
+variable, else EGL. Every context is OpenGL 3.3 core or newer.
+"""
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import logging
+import os
+from collections import deque
+
+import moderngl
+
+log = logging.getLogger(__name__)
+
+BACKENDS = ("egl", "osmesa", "window")
+REQUIRED_GL = 330
+
+# What to install when a backend's library is missing (Debian/Ubuntu package names).
+_DEBIAN_HINT = {
+    "egl": "libegl1 libegl-mesa0 libgl1-mesa-dri",
+    "osmesa": "libosmesa6",
+}
+
+
+class GLBackendError(RuntimeError):
+    """No OpenGL context could be created with the requested backend."""
+
+
+def default_backend() -> str:
+    return os.environ.get("GLSYNTH_GL_BACKEND", "egl").strip().lower() or "egl"
+
+
+def create_context(backend: str | None = None) -> moderngl.Context:
+    """Create a moderngl context for ``backend`` ('egl', 'osmesa' or 'window').
+
+    'window' attaches to the OpenGL context current on this thread (e.g. a GLFW window).
+    Raises GLBackendError naming the backend, the missing library and the package to
+    install when the context cannot be created.
+    """
+    backend = (backend or default_backend()).lower()
+    if backend not in BACKENDS:
+        raise GLBackendError(
+            f"unknown GL backend {backend!r} (GLSYNTH_GL_BACKEND or argument); "
+            f"choose one of {', '.join(BACKENDS)}")
+    if backend == "egl":
+        ctx = _create_egl()
+    elif backend == "osmesa":
+        ctx = _create_osmesa()
+    else:
+        ctx = moderngl.create_context(require=REQUIRED_GL)
+    info = ctx.info
+    log.info("GL backend %s: GL_RENDERER=%s GL_VERSION=%s", backend,
+             info["GL_RENDERER"], info["GL_VERSION"])
+    return ctx
+
+
+def _create_egl() -> moderngl.Context:
+    if ctypes.util.find_library("EGL") is None and not _loadable("libEGL.so.1"):
+        raise GLBackendError(
+            "GL backend 'egl': libEGL.so.1 not found; install the Debian packages "
+            f"'{_DEBIAN_HINT['egl']}' (or your GPU driver's EGL), or set "
+            "GLSYNTH_GL_BACKEND=osmesa")
+    try:
+        return moderngl.create_context(standalone=True, backend="egl", require=REQUIRED_GL)
+    except Exception as exc:  # glcontext raises bare Exceptions
+        raise GLBackendError(
+            f"GL backend 'egl': could not create an OpenGL {REQUIRED_GL // 100}."
+            f"{REQUIRED_GL // 10 % 10} context ({exc}); install '{_DEBIAN_HINT['egl']}' "
+            "for Mesa's software EGL, or set GLSYNTH_GL_BACKEND=osmesa") from exc
+
+
+def _loadable(name: str) -> bool:
+    try:
+        ctypes.CDLL(name)
+        return True
+    except OSError:
+        return False
+
+
+# OSMesa constants from GL/osmesa.h
+_OSMESA_FORMAT, _OSMESA_RGBA = 0x22, 0x1908
+_OSMESA_DEPTH_BITS, _OSMESA_STENCIL_BITS, _OSMESA_ACCUM_BITS = 0x30, 0x31, 0x32
+_OSMESA_PROFILE, _OSMESA_CORE_PROFILE = 0x33, 0x34
+_OSMESA_MAJOR, _OSMESA_MINOR = 0x36, 0x37
+_GL_UNSIGNED_BYTE = 0x1401
+
+
+class _OSMesaLoader:
+    """The loader object moderngl needs: resolves GL functions through OSMesa.
+
+    moderngl's own glcontext package has no OSMesa backend, so we create the context
+    with libOSMesa and hand moderngl ``OSMesaGetProcAddress``. Rendering goes to
+    framebuffers objects; the 1x1 default buffer only satisfies MakeCurrent.
+    """
+
+    def __init__(self):
+        name = ctypes.util.find_library("OSMesa") or "libOSMesa.so.8"
+        try:
+            lib = ctypes.CDLL(name)
+        except OSError as exc:
+            raise GLBackendError(
+                f"GL backend 'osmesa': {name} not found ({exc}); install the Debian "
+                f"package '{_DEBIAN_HINT['osmesa']}'") from exc
+        lib.OSMesaCreateContextAttribs.restype = ctypes.c_void_p
+        lib.OSMesaCreateContextAttribs.argtypes = [ctypes.POINTER(ctypes.c_int), ctypes.c_void_p]
+        lib.OSMesaMakeCurrent.restype = ctypes.c_bool
+        lib.OSMesaMakeCurrent.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint,
+                                          ctypes.c_int, ctypes.c_int]
+        lib.OSMesaGetProcAddress.restype = ctypes.c_void_p
+        lib.OSMesaGetProcAddress.argtypes = [ctypes.c_char_p]
+        lib.OSMesaDestroyContext.argtypes = [ctypes.c_void_p]
+        attribs = (ctypes.c_int * 15)(
+            _OSMESA_FORMAT, _OSMESA_RGBA, _OSMESA_DEPTH_BITS, 24, _OSMESA_STENCIL_BITS, 8,
+            _OSMESA_ACCUM_BITS, 0, _OSMESA_PROFILE, _OSMESA_CORE_PROFILE,
+            _OSMESA_MAJOR, REQUIRED_GL // 100, _OSMESA_MINOR, REQUIRED_GL // 10 % 10, 0)
+        handle = lib.OSMesaCreateContextAttribs(attribs, None)
+        if not handle:
+            raise GLBackendError(
+                f"GL backend 'osmesa': OSMesaCreateContextAttribs failed for a "
+                f"{REQUIRED_GL // 100}.{REQUIRED_GL // 10 % 10} core context; "
+                f"install a recent '{_DEBIAN_HINT['osmesa']}'")
+        self._lib, self._handle = lib, handle
+        self._buffer = ctypes.create_string_buffer(4)
+        self.make_current()
+
+    def make_current(self):
+        if not self._lib.OSMesaMakeCurrent(self._handle, self._buffer, _GL_UNSIGNED_BYTE, 1, 1):
+            raise GLBackendError("GL backend 'osmesa': OSMesaMakeCurrent failed")
+
+    def load_opengl_function(self, name: str) -> int:
+        return self._lib.OSMesaGetProcAddress(name.encode()) or 0
+
+    def __enter__(self):
+        self.make_current()
+
+    def __exit__(self, *args):
+        pass
+
+    def release(self):
+        if self._handle:
+            self._lib.OSMesaDestroyContext(self._handle)
+            self._handle = None
+
+
+def _create_osmesa() -> moderngl.Context:
+    loader = _OSMesaLoader()
+    # Same steps as moderngl.init_context, without making it the process-wide default.
+    ctx = moderngl.Context.__new__(moderngl.Context)
+    ctx.mglo, ctx.version_code = moderngl.mgl.create_context(context=loader)
+    ctx._info = None
+    ctx._extensions = None
+    ctx.extra = {"osmesa_loader": loader}
+    ctx._gc_mode = None
+    ctx._objects = deque()
+    ctx._screen = ctx.detect_framebuffer(0)
+    ctx.fbo = ctx.detect_framebuffer()
+    ctx.mglo.fbo = ctx.fbo.mglo
+    if ctx.version_code < REQUIRED_GL:
+        raise GLBackendError(
+            f"GL backend 'osmesa': got OpenGL {ctx.version_code}, need {REQUIRED_GL}")
+    return ctx

@@ -1,0 +1,168 @@
+"""Triangle meshes with per-face UV indices (OBJ style) and textures.
+
+A vertex may carry several UVs (at texture seams), so UVs have their own array and their
+own per-face index array ``face_uvs``, exactly as in an OBJ file. Loading never merges or
+reorders vertices: per-vertex data from elsewhere (anatomy labels in file order) stays
+aligned.
+"""
+from __future__ import annotations
+
+import logging
+import os
+from functools import cached_property
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+class MeshError(ValueError):
+    """A mesh (or a mesh file) is unusable; the message names the file and the problem."""
+
+
+class Mesh:
+    """vertices (V,3) float, faces (F,3) int, uvs (T,2) float, face_uvs (F,3) int,
+    texture HxWx3 uint8 (row 0 = top of the image, v = 1 at the top), plus optional
+    named extra textures (label maps) in ``textures``.
+    """
+
+    def __init__(self, vertices, faces, uvs=None, face_uvs=None, texture=None,
+                 textures=None, vertex_labels=None, vertex_colors=None, name="mesh",
+                 require_texture=True):
+        self.name = str(name)
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces)
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+            raise MeshError(f"{self.name}: vertices must be a non-empty (V, 3) array, got shape {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+            raise MeshError(f"{self.name}: faces must be a non-empty (F, 3) array of triangles, got shape {f.shape}")
+        if not np.issubdtype(f.dtype, np.integer):
+            raise MeshError(f"{self.name}: faces must be integers, got dtype {f.dtype}")
+        bad = ~np.isfinite(v).all(1)
+        if bad.any():
+            raise MeshError(f"{self.name}: {int(bad.sum())} vertices have NaN or inf coordinates "
+                            f"(first at index {int(np.argmax(bad))})")
+        if f.min() < 0 or f.max() >= len(v):
+            raise MeshError(f"{self.name}: face indices out of range [0, {len(v) - 1}] "
+                            f"(min {int(f.min())}, max {int(f.max())})")
+        self.vertices, self.faces = v, f.astype(np.int64)
+
+        if uvs is None:
+            if require_texture:
+                raise MeshError(f"{self.name}: mesh has no UV coordinates; create them with "
+                                "glsynth.assets.uv.ensure_uvs (xatlas) or load a textured mesh")
+            self.uvs = self.face_uvs = None
+        else:
+            t = np.asarray(uvs, dtype=np.float64)
+            if t.ndim != 2 or t.shape[1] != 2:
+                raise MeshError(f"{self.name}: uvs must be (T, 2), got shape {t.shape}")
+            if not np.isfinite(t).all():
+                raise MeshError(f"{self.name}: UV coordinates contain NaN or inf")
+            ft = self.faces if face_uvs is None else np.asarray(face_uvs)
+            if ft.shape != self.faces.shape:
+                raise MeshError(f"{self.name}: face_uvs must have the shape of faces {self.faces.shape}, got {ft.shape}")
+            if ft.min() < 0 or ft.max() >= len(t):
+                raise MeshError(f"{self.name}: face_uvs indices out of range [0, {len(t) - 1}]")
+            self.uvs, self.face_uvs = t, ft.astype(np.int64)
+
+        if texture is None:
+            if require_texture:
+                raise MeshError(f"{self.name}: mesh has no texture image")
+            self.texture = None
+        else:
+            self.texture = _as_rgb_texture(texture, self.name)
+        self.textures = dict(textures or {})
+        self.vertex_labels = None if vertex_labels is None else np.asarray(vertex_labels)
+        self.vertex_colors = None if vertex_colors is None else np.asarray(vertex_colors)
+        if self.vertex_labels is not None and len(self.vertex_labels) != len(v):
+            raise MeshError(f"{self.name}: {len(self.vertex_labels)} vertex labels for {len(v)} vertices")
+        n_deg = int(self.degenerate_faces.sum())
+        if n_deg:
+            log.warning("%s: %d of %d faces are degenerate (zero area); they are kept and "
+                        "render as nothing", self.name, n_deg, len(self.faces))
+
+    # ---- derived geometry -----------------------------------------------------------
+    @cached_property
+    def _face_cross(self):
+        a, b, c = (self.vertices[self.faces[:, i]] for i in range(3))
+        return np.cross(b - a, c - a)
+
+    @cached_property
+    def face_areas(self) -> np.ndarray:
+        return 0.5 * np.linalg.norm(self._face_cross, axis=1)
+
+    @cached_property
+    def degenerate_faces(self) -> np.ndarray:
+        """Boolean mask of faces with (numerically) zero area."""
+        scale = max(float(np.ptp(self.vertices, axis=0).max()), 1e-30)
+        return self.face_areas <= 1e-14 * scale * scale
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """Unit face normals (F,3); zero for degenerate faces."""
+        n = self._face_cross
+        norm = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.where(norm > 0, n / np.maximum(norm, 1e-300), 0.0)
+
+    @cached_property
+    def vertex_normals(self) -> np.ndarray:
+        """Area-weighted smooth vertex normals (V,3); +Y for isolated vertices."""
+        acc = np.zeros_like(self.vertices)
+        for i in range(3):
+            np.add.at(acc, self.faces[:, i], self._face_cross)
+        norm = np.linalg.norm(acc, axis=1, keepdims=True)
+        out = np.where(norm > 0, acc / np.maximum(norm, 1e-300), 0.0)
+        out[norm[:, 0] == 0] = (0.0, 1.0, 0.0)
+        return out
+
+    @property
+    def bounds(self):
+        return self.vertices.min(0), self.vertices.max(0)
+
+    def copy_with(self, **changes) -> "Mesh":
+        """A new Mesh with some arrays replaced (e.g. a blended texture)."""
+        args = dict(vertices=self.vertices, faces=self.faces, uvs=self.uvs,
+                    face_uvs=self.face_uvs, texture=self.texture, textures=self.textures,
+                    vertex_labels=self.vertex_labels, vertex_colors=self.vertex_colors,
+                    name=self.name)
+        args.update(changes)
+        return Mesh(**args)
+
+    def __repr__(self):
+        tex = None if self.texture is None else self.texture.shape
+        return (f"Mesh({self.name!r}, vertices={len(self.vertices)}, faces={len(self.faces)}, "
+                f"uvs={None if self.uvs is None else len(self.uvs)}, texture={tex})")
+
+    # ---- loading ------------------------------------------------------------------
+    @classmethod
+    def load(cls, path, texture=None, require_texture=True) -> "Mesh":
+        """Load OBJ (own parser: file order kept, per-face UVs), or anything trimesh reads.
+
+        ``texture`` overrides the texture named by the material (path or array).
+        """
+        from .io.meshfile import load_mesh_arrays
+        arrays = load_mesh_arrays(path)
+        if texture is not None:
+            arrays["texture"] = texture
+        if isinstance(arrays.get("texture"), (str, os.PathLike)):
+            from .io.images import read_rgb
+            arrays["texture"] = read_rgb(arrays["texture"])
+        try:
+            return cls(name=str(path), require_texture=require_texture, **arrays)
+        except MeshError as exc:
+            raise MeshError(str(exc)) from None
+
+
+def _as_rgb_texture(tex, name) -> np.ndarray:
+    t = np.asarray(tex)
+    if t.ndim == 2:
+        t = np.repeat(t[..., None], 3, axis=2)
+    if t.ndim != 3 or t.shape[2] not in (3, 4):
+        raise MeshError(f"{name}: texture must be HxWx3 (RGB), got shape {t.shape}")
+    t = t[..., :3]
+    if t.dtype != np.uint8:
+        if np.issubdtype(t.dtype, np.floating) and np.isfinite(t).all() and t.min() >= 0 and t.max() <= 1:
+            t = np.round(t * 255).astype(np.uint8)
+        else:
+            raise MeshError(f"{name}: texture must be uint8 or float in [0, 1], got {t.dtype}")
+    return np.ascontiguousarray(t)
