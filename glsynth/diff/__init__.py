@@ -1,0 +1,136 @@
+"""Differentiable texture path in torch, driven by the GL G-buffer.
+
+Geometry is not differentiated: the G-buffer (face id, barycentrics) from
+``Renderer.render(..., passes=("gbuffer",))`` fixes which surface point each pixel sees.
+Everything after that is plain torch, so gradients flow from pixels to texels through
+``grid_sample``. The four functions mirror nvdiffrast's split:
+
+- ``interpolate``: per-vertex (or per-corner) attributes -> per-pixel values
+- ``texture``: bilinear lookup of a texture at per-pixel UVs (same filter as the GL pass)
+- ``phong``: the Phong terms of ``shaders/phong.frag``
+- ``shade``: all of the above, the torch twin of the GL 'rgb' pass
+
+Shapes: H x W image, B views, V vertices, F faces. Tensors may live on CPU or CUDA;
+outputs follow the texture's device and dtype.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ..lighting import Material, PointLight, check_lights
+
+__all__ = ["interpolate", "texture", "phong", "shade", "GBuffer"]
+
+
+class GBuffer:
+    """Torch view of one or more G-buffers: face_id (B,H,W) long, bary (B,H,W,3)."""
+
+    def __init__(self, outs, device=None, dtype=torch.float32):
+        outs = [outs] if isinstance(outs, dict) else list(outs)
+        if not outs:
+            raise ValueError("need at least one G-buffer")
+        for o in outs:
+            if "face_id" not in o or "bary" not in o:
+                raise ValueError("G-buffer dict needs 'face_id' and 'bary' "
+                                 "(render with passes=('gbuffer', ...))")
+        self.face_id = torch.as_tensor(np.stack([o["face_id"] for o in outs]), device=device).long()
+        self.bary = torch.as_tensor(np.stack([o["bary"] for o in outs]), device=device, dtype=dtype)
+        self.mask = self.face_id >= 0
+
+
+def interpolate(attr, faces, gbuf: GBuffer):
+    """Barycentric interpolation of attributes.
+
+    attr: (N, C) tensor; faces: (F, 3) long tensor indexing attr (vertex faces for
+    per-vertex attributes, ``face_uvs`` for UVs). Returns (B, H, W, C); background
+    pixels get 0.
+    """
+    fid = gbuf.face_id.clamp(min=0)
+    corners = faces[fid]                           # B,H,W,3
+    vals = attr[corners]                           # B,H,W,3,C
+    out = (vals * gbuf.bary.to(attr.dtype)[..., None]).sum(-2)
+    return out * gbuf.mask[..., None].to(out.dtype)
+
+
+def _as_bchw(tex):
+    if tex.dim() == 3:                       # H x W x C
+        return tex.permute(2, 0, 1)[None]
+    if tex.dim() == 4 and tex.shape[0] == 1:  # 1 x C x H x W
+        return tex
+    raise ValueError(f"texture must be HxWxC or 1xCxHxW, got shape {tuple(tex.shape)}")
+
+
+def texture(tex, uv):
+    """Bilinear texture lookup, identical to the GL sampler (LINEAR, clamp to edge).
+
+    tex: HxWxC or 1xCxHxW float tensor (row 0 = top = v 1); uv: (B, H, W, 2) in [0, 1]
+    (u right, v up). Returns (B, H, W, C). Texel centres sit at (i + 0.5) / size, which
+    is grid_sample's ``align_corners=False``; 'border' padding is GL's clamp-to-edge.
+    """
+    t = _as_bchw(tex)
+    b = uv.shape[0]
+    grid = torch.stack([uv[..., 0] * 2 - 1, 1 - uv[..., 1] * 2], -1).to(t.dtype)
+    out = F.grid_sample(t.expand(b, -1, -1, -1), grid, mode="bilinear",
+                        padding_mode="border", align_corners=False)
+    return out.permute(0, 2, 3, 1)
+
+
+def phong(texel, position, normal, eye, lights, material):
+    """Phong shading as in ``shaders/phong.frag`` (display-referred, clamped to [0, 1]).
+
+    texel, position, normal: (B, H, W, 3); eye: (B, 3). Normals are normalised here.
+    """
+    dt, dev = texel.dtype, texel.device
+    n = F.normalize(normal, dim=-1, eps=1e-30)
+    view_dir = F.normalize(eye[:, None, None, :] - position, dim=-1, eps=1e-20)
+    light_sum = torch.zeros_like(texel)
+    spec_sum = torch.zeros_like(texel)
+    ks = torch.tensor(material.specular, dtype=dt, device=dev)
+    for light in lights:
+        lp = torch.tensor(light.position, dtype=dt, device=dev)
+        l = F.normalize(lp - position, dim=-1, eps=1e-20)
+        cos_nl = (n * l).sum(-1, keepdim=True)
+        light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) \
+            + torch.tensor(light.diffuse, dtype=dt, device=dev) * cos_nl.clamp(min=0)
+        r = 2 * cos_nl * n - l
+        rv = (r * view_dir).sum(-1, keepdim=True).clamp(min=0)
+        spec = torch.tensor(light.specular, dtype=dt, device=dev) * ks * rv.pow(material.shininess)
+        spec_sum = spec_sum + torch.where(cos_nl > 0, spec, torch.zeros_like(spec))
+    return (texel * light_sum + spec_sum).clamp(0, 1)
+
+
+def shade(outs, mesh, tex, cameras, lights=None, material=None):
+    """Torch twin of the GL 'rgb' pass (without supersampling).
+
+    outs: a G-buffer dict (or a list of them, one per view); mesh: glsynth.Mesh;
+    tex: float texture HxWx3 or 1x3xHxW in [0, 1] (may require grad); cameras: a Camera
+    or a list matching ``outs``; lights: list of PointLight (default: one at each
+    camera, the paper's blending light). Returns (H, W, 3) for one view, (B, H, W, 3)
+    for a list; background pixels are 0.
+    """
+    single = isinstance(outs, dict)
+    cams = [cameras] if single or not isinstance(cameras, (list, tuple)) else list(cameras)
+    gbuf = GBuffer(outs, device=tex.device, dtype=tex.dtype)
+    if len(cams) == 1 and gbuf.face_id.shape[0] > 1:
+        cams = cams * gbuf.face_id.shape[0]
+    if len(cams) != gbuf.face_id.shape[0]:
+        raise ValueError(f"{len(cams)} cameras for {gbuf.face_id.shape[0]} G-buffers")
+    material = material or Material()
+    dev, dt = tex.device, tex.dtype
+    faces = torch.as_tensor(mesh.faces, device=dev)
+    face_uvs = torch.as_tensor(mesh.face_uvs, device=dev)
+    uv = interpolate(torch.as_tensor(mesh.uvs, device=dev, dtype=dt), face_uvs, gbuf)
+    pos = interpolate(torch.as_tensor(mesh.vertices, device=dev, dtype=dt), faces, gbuf)
+    nrm = interpolate(torch.as_tensor(mesh.vertex_normals, device=dev, dtype=dt), faces, gbuf)
+    texel = texture(tex, uv)[..., :3]
+    eye = torch.tensor(np.array([c.eye for c in cams]), device=dev, dtype=dt)
+    if lights is None:
+        images = [phong(texel[i:i + 1], pos[i:i + 1], nrm[i:i + 1], eye[i:i + 1],
+                        [PointLight(c.eye)], material) for i, c in enumerate(cams)]
+        img = torch.cat(images)
+    else:
+        img = phong(texel, pos, nrm, eye, check_lights(lights), material)
+    img = img * gbuf.mask[..., None].to(dt)
+    return img[0] if single else img

@@ -1,0 +1,314 @@
+"""The moderngl renderer: G-buffer, Phong shading (optionally supersampled) and exact
+integer label passes.
+
+Meshes and textures are uploaded once (cached per object) and rendered many times;
+framebuffers are created once per size. ``render`` runs only the requested passes and
+reads each requested buffer back once. Returned arrays have row 0 at the top.
+"""
+from __future__ import annotations
+
+import logging
+import weakref
+
+import moderngl
+import numpy as np
+
+from ..camera import Camera
+from ..lighting import Material, PointLight, check_lights, MAX_LIGHTS
+from ..mesh import Mesh
+from ..resources import shader_source
+from .context import create_context
+
+log = logging.getLogger(__name__)
+
+PASSES = ("gbuffer", "rgb", "labels")
+MAX_LABEL_TARGETS = 4
+MAX_SUPERSAMPLE = 8
+
+
+class _MeshOnGPU:
+    """Unindexed corner buffer (3 corners per face, in face order) of one mesh."""
+
+    def __init__(self, ctx, mesh: Mesh, programs):
+        corners = mesh.faces.reshape(-1)
+        pos = mesh.vertices[corners].astype(np.float32)
+        nrm = mesh.vertex_normals[corners].astype(np.float32)
+        uv = (mesh.uvs[mesh.face_uvs.reshape(-1)] if mesh.uvs is not None
+              else np.zeros((len(corners), 2))).astype(np.float32)
+        data = np.concatenate([pos, nrm, uv], axis=1)
+        self.vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
+        self.count = len(corners)
+        self.vaos = {}
+        for name, prog in programs.items():
+            attrs = [a for a in ("in_position", "in_normal", "in_uv") if a in prog]
+            fmt = " ".join("3f" if a != "in_uv" else "2f" for a in attrs)
+            # skip unused attributes so that each program reads only what it needs
+            layout = {"in_position": "3f", "in_normal": "3f", "in_uv": "2f"}
+            fmt = " ".join(layout[a] if a in attrs else layout[a].replace("f", "x4")
+                           for a in ("in_position", "in_normal", "in_uv"))
+            self.vaos[name] = ctx.vertex_array(prog, [(self.vbo, fmt, *attrs)])
+        self.texture = None
+        if mesh.texture is not None:
+            h, w = mesh.texture.shape[:2]
+            self.texture = ctx.texture((w, h), 3, np.ascontiguousarray(mesh.texture).tobytes(),
+                                       alignment=1)
+            self.texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self.texture.repeat_x = self.texture.repeat_y = False  # clamp, like grid_sample 'border'
+
+    def release(self):
+        for vao in self.vaos.values():
+            vao.release()
+        self.vbo.release()
+        if self.texture is not None:
+            self.texture.release()
+
+
+class Renderer:
+    """Offscreen renderer of ``width`` x ``height`` images.
+
+    backend: 'egl', 'osmesa', 'window' (attach to the current context), or None for
+    ``GLSYNTH_GL_BACKEND`` (default 'egl'). ``ctx`` may pass an existing moderngl context.
+    """
+
+    def __init__(self, width=512, height=512, backend=None, ctx=None):
+        if int(width) < 1 or int(height) < 1:
+            raise ValueError(f"render size must be positive, got {width}x{height}")
+        self.width, self.height = int(width), int(height)
+        self.ctx = ctx or create_context(backend)
+        self.ctx.depth_clamp_range = (0.0, 1.0)  # enables GL_DEPTH_CLAMP (see Camera.clip_planes)
+        vert = shader_source("mesh.vert")
+        self.programs = {
+            "gbuffer": self.ctx.program(vertex_shader=vert, fragment_shader=shader_source("gbuffer.frag")),
+            "rgb": self.ctx.program(vertex_shader=vert, fragment_shader=shader_source("phong.frag")),
+            "labels": self.ctx.program(vertex_shader=vert, fragment_shader=shader_source("labels.frag")),
+        }
+        self._downsample = self.ctx.program(vertex_shader=shader_source("fullscreen.vert"),
+                                            fragment_shader=shader_source("downsample.frag"))
+        self._empty_vao = self.ctx.vertex_array(self._downsample, [])
+        self._meshes = {}      # id(mesh) -> (weakref(mesh), _MeshOnGPU)
+        self._label_tex = {}   # id(array) -> (array, texture)
+        self._fbos = {}
+        for i in range(MAX_LABEL_TARGETS):
+            self.programs["labels"][f"u_labels{i}"] = i
+
+    @property
+    def info(self) -> dict:
+        return dict(self.ctx.info)
+
+    # ---- resources --------------------------------------------------------------
+    def _gpu_mesh(self, mesh: Mesh) -> _MeshOnGPU:
+        entry = self._meshes.get(id(mesh))
+        if entry is not None and entry[0]() is mesh:
+            return entry[1]
+        if entry is not None:
+            entry[1].release()
+        gpu = _MeshOnGPU(self.ctx, mesh, self.programs)
+        self._meshes[id(mesh)] = (weakref.ref(mesh, self._drop_mesh(id(mesh))), gpu)
+        return gpu
+
+    def _drop_mesh(self, key):
+        def drop(_ref):
+            entry = self._meshes.pop(key, None)
+            if entry is not None:
+                try:
+                    entry[1].release()
+                except Exception:  # context may already be gone at interpreter exit
+                    pass
+        return drop
+
+    def _label_texture(self, labels: np.ndarray):
+        """Upload an integer label map once; arrays are treated as immutable."""
+        entry = self._label_tex.get(id(labels))
+        if entry is not None and entry[0] is labels:
+            return entry[1]
+        arr = np.asarray(labels)
+        if arr.ndim != 2:
+            raise ValueError(f"label texture must be a 2D integer array, got shape {arr.shape}")
+        if arr.dtype == np.bool_:
+            arr = arr.astype(np.uint8)
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"label texture must have an integer dtype, got {arr.dtype}")
+        if arr.size and (arr.min() < 0 or arr.max() > 65535):
+            raise ValueError(f"label ids must be in [0, 65535], got [{arr.min()}, {arr.max()}]")
+        data = np.ascontiguousarray(arr.astype(np.uint16))
+        tex = self.ctx.texture((arr.shape[1], arr.shape[0]), 1, data.tobytes(), dtype="u2",
+                               alignment=2)
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        if len(self._label_tex) >= 16:  # bounded cache: drop the oldest
+            old = next(iter(self._label_tex))
+            self._label_tex.pop(old)[1].release()
+        self._label_tex[id(labels)] = (labels, tex)
+        return tex
+
+    def _fbo(self, kind, w, h):
+        key = (kind, w, h)
+        fbo = self._fbos.get(key)
+        if fbo is not None:
+            return fbo
+        ctx = self.ctx
+        depth = ctx.depth_renderbuffer((w, h))
+        if kind == "gbuffer":
+            colors = [ctx.renderbuffer((w, h), 1, dtype="i4"), ctx.renderbuffer((w, h), 4, dtype="f4"),
+                      ctx.renderbuffer((w, h), 2, dtype="f4")]
+        elif kind == "labels":
+            colors = [ctx.renderbuffer((w, h), 1, dtype="u2") for _ in range(MAX_LABEL_TARGETS)]
+        elif kind == "rgb":
+            colors = [ctx.texture((w, h), 4, dtype="f4")]
+        elif kind == "resolve":
+            colors, depth = [ctx.renderbuffer((w, h), 4, dtype="f4")], None
+        else:
+            raise KeyError(kind)
+        fbo = ctx.framebuffer(color_attachments=colors, depth_attachment=depth)
+        self._fbos[key] = fbo
+        return fbo
+
+    # ---- rendering ----------------------------------------------------------------
+    def render(self, mesh: Mesh, camera: Camera, passes=("gbuffer", "rgb"), lights=None,
+               material=None, label_texture=None, label_textures=None, supersample=1):
+        """Render ``mesh`` from ``camera``.
+
+        passes: any of 'gbuffer', 'rgb', 'labels'. Returns a dict of numpy arrays
+        (H x W = camera.height x camera.width, row 0 at the top):
+          gbuffer: face_id int32 (-1 background), bary float32 x3, depth float32
+                   (view-space, > 0; -1 background), uv float32 x2
+          rgb:     rgb float32 x3 in [0, 1], alpha float32 (coverage, fractional with
+                   supersampling)
+          labels:  labels uint16 (from ``label_texture``) or one uint16 array per name
+                   of ``label_textures`` (at most 4 per call)
+        Vertex/face labels (anatomy) come from the G-buffer: see ``vertex_label_image``.
+        """
+        passes = tuple(passes)
+        unknown = set(passes) - set(PASSES)
+        if unknown:
+            raise ValueError(f"unknown pass(es) {sorted(unknown)}; choose from {PASSES}")
+        if (camera.width, camera.height) != (self.width, self.height):
+            camera = camera.with_size(self.width, self.height)
+        gpu = self._gpu_mesh(mesh)
+        view = camera.view_matrix()
+        if camera.near is not None and camera.far is not None:
+            near, far = camera.near, camera.far
+        else:
+            near, far = camera.clip_planes(*mesh.bounds, vertices=mesh.vertices)
+        proj = camera.projection_matrix(near, far)
+        mats = {"u_view": view.T.astype("f4").tobytes(), "u_proj": proj.T.astype("f4").tobytes()}
+        out = {}
+        ctx = self.ctx
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        if "gbuffer" in passes:
+            out.update(self._render_gbuffer(gpu, mats))
+        if "rgb" in passes:
+            if mesh.texture is None:
+                raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
+            out.update(self._render_rgb(gpu, mats, camera, lights, material, supersample))
+        if "labels" in passes:
+            out.update(self._render_labels(gpu, mats, label_texture, label_textures))
+        return out
+
+    def _read(self, fbo, attachment, components, dtype, np_dtype):
+        w, h = fbo.size
+        buf = np.empty((h, w, components) if components > 1 else (h, w), dtype=np_dtype)
+        fbo.read_into(buf, components=components, attachment=attachment, dtype=dtype, alignment=1)
+        return np.ascontiguousarray(buf[::-1])
+
+    def _render_gbuffer(self, gpu, mats):
+        fbo = self._fbo("gbuffer", self.width, self.height)
+        # moderngl clears every attachment with the same (float) value, so the shader
+        # writes face id + 1 over a cleared 0, and -1 lands in the depth channel.
+        self._draw(gpu, "gbuffer", fbo, mats, clear=(0.0, 0.0, 0.0, -1.0))
+        face = self._read(fbo, 0, 1, "i4", np.int32)
+        face -= 1
+        bd = self._read(fbo, 1, 4, "f4", np.float32)
+        uv = self._read(fbo, 2, 2, "f4", np.float32)
+        return {"face_id": face, "bary": np.ascontiguousarray(bd[..., :3]),
+                "depth": np.ascontiguousarray(bd[..., 3]), "uv": uv}
+
+    def _render_rgb(self, gpu, mats, camera, lights, material, supersample):
+        k = int(supersample)
+        if not 1 <= k <= MAX_SUPERSAMPLE:
+            raise ValueError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
+        if lights is None:
+            lights = [PointLight(camera.eye)]
+        lights = check_lights(lights)
+        material = material or Material()
+        prog = self.programs["rgb"]
+        n = len(lights)
+        pad = [(0.0, 0.0, 0.0)] * (MAX_LIGHTS - n)
+        prog["u_num_lights"].value = n
+        for key, attr in (("u_light_pos", "position"), ("u_light_ambient", "ambient"),
+                          ("u_light_diffuse", "diffuse"), ("u_light_specular", "specular")):
+            prog[key].write(np.array([getattr(l, attr) for l in lights] + pad, "f4").tobytes())
+        prog["u_mat_specular"].value = material.specular
+        prog["u_shininess"].value = material.shininess
+        prog["u_eye"].value = tuple(camera.eye)
+        gpu.texture.use(0)
+        prog["u_texture"].value = 0
+        fbo = self._fbo("rgb", self.width * k, self.height * k)
+        self._draw(gpu, "rgb", fbo, mats)
+        if k > 1:
+            src = fbo.color_attachments[0]
+            fbo = self._fbo("resolve", self.width, self.height)
+            fbo.use()
+            fbo.viewport = (0, 0, self.width, self.height)
+            self.ctx.disable(moderngl.DEPTH_TEST)
+            src.use(0)
+            self._downsample["u_source"].value = 0
+            self._downsample["u_factor"].value = k
+            self._empty_vao.render(moderngl.TRIANGLES, vertices=3)
+            self.ctx.enable(moderngl.DEPTH_TEST)
+        rgba = self._read(fbo, 0, 4, "f4", np.float32)
+        return {"rgb": np.ascontiguousarray(rgba[..., :3]), "alpha": np.ascontiguousarray(rgba[..., 3])}
+
+    def _render_labels(self, gpu, mats, label_texture, label_textures):
+        if label_textures is None:
+            if label_texture is None:
+                raise ValueError("the labels pass needs label_texture= or label_textures=")
+            label_textures = {"labels": label_texture}
+        elif label_texture is not None:
+            raise ValueError("pass either label_texture or label_textures, not both")
+        items = list(label_textures.items())
+        if not 1 <= len(items) <= MAX_LABEL_TARGETS:
+            raise ValueError(f"1 to {MAX_LABEL_TARGETS} label textures per render, got {len(items)}")
+        prog = self.programs["labels"]
+        for i, (_, arr) in enumerate(items):
+            self._label_texture(arr).use(i)
+        for i in range(len(items), MAX_LABEL_TARGETS):  # unused samplers still need a valid texture
+            self._label_texture(items[0][1]).use(i)
+        prog["u_count"].value = len(items)
+        fbo = self._fbo("labels", self.width, self.height)
+        self._draw(gpu, "labels", fbo, mats)
+        return {name: self._read(fbo, i, 1, "u2", np.uint16) for i, (name, _) in enumerate(items)}
+
+    def _draw(self, gpu, prog_name, fbo, mats, clear=(0.0, 0.0, 0.0, 0.0)):
+        prog = self.programs[prog_name]
+        for k, v in mats.items():
+            prog[k].write(v)
+        fbo.use()
+        fbo.viewport = (0, 0, *fbo.size)
+        fbo.clear(*clear, depth=1.0)
+        gpu.vaos[prog_name].render(moderngl.TRIANGLES, vertices=gpu.count)
+
+    def release(self):
+        for _, gpu in list(self._meshes.values()):
+            gpu.release()
+        self._meshes.clear()
+        for _, tex in self._label_tex.values():
+            tex.release()
+        self._label_tex.clear()
+        for fbo in self._fbos.values():
+            fbo.release()
+        self._fbos.clear()
+
+
+def vertex_label_image(out: dict, mesh: Mesh, vertex_labels=None) -> np.ndarray:
+    """Per-vertex integer labels as an image, exact: each pixel takes the label of the
+    face corner with the largest barycentric weight (0 on background). uint8/uint16."""
+    labels = mesh.vertex_labels if vertex_labels is None else np.asarray(vertex_labels)
+    if labels is None:
+        raise ValueError(f"{mesh.name}: mesh has no vertex labels")
+    face = out["face_id"]
+    fg = face >= 0
+    img = np.zeros(face.shape, dtype=labels.dtype)
+    corner = np.argmax(out["bary"][fg], axis=1)
+    img[fg] = labels[mesh.faces[face[fg], corner]]
+    return img

@@ -1,0 +1,69 @@
+"""Point lights and Phong materials shared by the GL shader and the torch path."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _rgb(value, what):
+    a = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,)).copy()
+    if not np.isfinite(a).all() or (a < 0).any():
+        raise ValueError(f"{what} must be finite and >= 0, got {np.asarray(value).tolist()}")
+    return tuple(a.tolist())
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """A point light: position (scene units) and RGB ambient/diffuse/specular colours
+    (a scalar means grey). The paper's blending light: ambient 0.5, diffuse 0.5,
+    specular 0.025 at the camera."""
+
+    position: tuple
+    ambient: tuple = (0.5, 0.5, 0.5)
+    diffuse: tuple = (0.5, 0.5, 0.5)
+    specular: tuple = (0.025, 0.025, 0.025)
+
+    def __post_init__(self):
+        p = np.asarray(self.position, dtype=np.float64).reshape(3)
+        if not np.isfinite(p).all():
+            raise ValueError(f"light position must be finite, got {p.tolist()}")
+        object.__setattr__(self, "position", tuple(p.tolist()))
+        for name in ("ambient", "diffuse", "specular"):
+            object.__setattr__(self, name, _rgb(getattr(self, name), f"light {name}"))
+
+    def to_dict(self):
+        return {"position": list(self.position), "ambient": list(self.ambient),
+                "diffuse": list(self.diffuse), "specular": list(self.specular)}
+
+
+@dataclass(frozen=True)
+class Material:
+    """Phong material: specular colour and shininess exponent (paper: 0.025, 50)."""
+
+    specular: tuple = (0.025, 0.025, 0.025)
+    shininess: float = 50.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "specular", _rgb(self.specular, "material specular"))
+        if not (np.isfinite(self.shininess) and self.shininess > 0):
+            raise ValueError(f"material shininess must be > 0, got {self.shininess}")
+        object.__setattr__(self, "shininess", float(self.shininess))
+
+    def to_dict(self):
+        return {"specular": list(self.specular), "shininess": self.shininess}
+
+
+MAX_LIGHTS = 8
+
+
+def check_lights(lights):
+    lights = list(lights)
+    if not lights:
+        raise ValueError("shading needs at least one light")
+    if len(lights) > MAX_LIGHTS:
+        raise ValueError(f"at most {MAX_LIGHTS} lights are supported, got {len(lights)}")
+    for l in lights:
+        if not isinstance(l, PointLight):
+            raise TypeError(f"lights must be PointLight, got {type(l).__name__}")
+    return lights

@@ -1,0 +1,35 @@
+"""Locate data shipped with glsynth (GLSL shaders, YAML configs).
+
+In a source checkout or editable install they sit at the repository root
+(``shaders/``, ``configs/``); a wheel carries them inside the package.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+_PKG = Path(__file__).resolve().parent
+
+
+def _find(kind: str) -> Path:
+    for cand in (_PKG / kind, _PKG.parent / kind):
+        if cand.is_dir():
+            return cand
+    raise FileNotFoundError(f"glsynth {kind}/ folder not found next to {_PKG}; "
+                            "reinstall glsynth (pip install -e .)")
+
+
+def shader_dir() -> Path:
+    return _find("shaders")
+
+
+def config_dir() -> Path:
+    return _find("configs")
+
+
+@lru_cache(maxsize=None)
+def shader_source(name: str) -> str:
+    path = shader_dir() / name
+    if not path.is_file():
+        raise FileNotFoundError(f"shader {name!r} not found in {shader_dir()}")
+    return path.read_text()

@@ -1,0 +1,44 @@
+#version 330 core
+// Textured Phong shading with point lights, in the same form as glsynth.diff.shade:
+//   colour = texel * sum(ambient + diffuse * max(n.l, 0)) + sum(specular * ks * max(r.v, 0)^shininess)
+// where the specular term is zero when the light is behind the surface (n.l <= 0).
+// Colours are display-referred: lighting acts on the sRGB-encoded texture values
+// directly, as in the DermSynth3D paper's PyTorch3D renderer. Alpha is coverage.
+#define MAX_LIGHTS 8
+uniform sampler2D u_texture;
+uniform vec3 u_eye;
+uniform int u_num_lights;
+uniform vec3 u_light_pos[MAX_LIGHTS];
+uniform vec3 u_light_ambient[MAX_LIGHTS];
+uniform vec3 u_light_diffuse[MAX_LIGHTS];
+uniform vec3 u_light_specular[MAX_LIGHTS];
+uniform vec3 u_mat_specular;
+uniform float u_shininess;
+
+in vec3 v_world;
+in vec3 v_normal;
+in vec2 v_uv;
+
+out vec4 out_color;
+
+void main() {
+    vec3 texel = texture(u_texture, vec2(v_uv.x, 1.0 - v_uv.y)).rgb;
+    float nlen = length(v_normal);
+    vec3 n = nlen > 0.0 ? v_normal / nlen : vec3(0.0);
+    vec3 to_eye = u_eye - v_world;
+    vec3 view_dir = to_eye / max(length(to_eye), 1e-20);
+    vec3 light_sum = vec3(0.0);
+    vec3 spec_sum = vec3(0.0);
+    for (int i = 0; i < u_num_lights; ++i) {
+        vec3 to_light = u_light_pos[i] - v_world;
+        vec3 l = to_light / max(length(to_light), 1e-20);
+        float cos_nl = dot(n, l);
+        light_sum += u_light_ambient[i] + u_light_diffuse[i] * max(cos_nl, 0.0);
+        if (cos_nl > 0.0) {
+            vec3 r = 2.0 * cos_nl * n - l;
+            float rv = max(dot(r, view_dir), 0.0);
+            spec_sum += u_light_specular[i] * u_mat_specular * pow(rv, u_shininess);
+        }
+    }
+    out_color = vec4(clamp(texel * light_sum + spec_sum, 0.0, 1.0), 1.0);
+}
