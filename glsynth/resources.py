@@ -29,7 +29,14 @@ def config_dir() -> Path:
 
 @lru_cache(maxsize=None)
 def shader_source(name: str) -> str:
+    """GLSL source with ``#include "file"`` lines replaced by that file's source."""
     path = shader_dir() / name
     if not path.is_file():
         raise FileNotFoundError(f"shader {name!r} not found in {shader_dir()}")
-    return path.read_text()
+    lines = []
+    for line in path.read_text().splitlines():
+        if line.startswith("#include "):
+            lines.append(shader_source(line.split(None, 1)[1].strip().strip('"')))
+        else:
+            lines.append(line)
+    return "\n".join(lines) + "\n"

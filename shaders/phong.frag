@@ -15,22 +15,24 @@ uniform vec3 u_light_specular[MAX_LIGHTS];
 uniform vec3 u_mat_specular;
 uniform float u_shininess;
 
-in vec3 v_world;
-in vec3 v_normal;
-in vec2 v_uv;
+#include "surface.glsl"
 
 out vec4 out_color;
 
 void main() {
-    vec3 texel = texture(u_texture, vec2(v_uv.x, 1.0 - v_uv.y)).rgb;
-    float nlen = length(v_normal);
-    vec3 n = nlen > 0.0 ? v_normal / nlen : vec3(0.0);
-    vec3 to_eye = u_eye - v_world;
+    vec3 b = surface_bary();
+    vec2 uv = g_uv * b;
+    vec3 world = g_world * b;
+    vec3 normal = g_normal * b;
+    vec3 texel = texture(u_texture, vec2(uv.x, 1.0 - uv.y)).rgb;
+    float nlen = length(normal);
+    vec3 n = nlen > 0.0 ? normal / nlen : vec3(0.0);
+    vec3 to_eye = u_eye - world;
     vec3 view_dir = to_eye / max(length(to_eye), 1e-20);
     vec3 light_sum = vec3(0.0);
     vec3 spec_sum = vec3(0.0);
     for (int i = 0; i < u_num_lights; ++i) {
-        vec3 to_light = u_light_pos[i] - v_world;
+        vec3 to_light = u_light_pos[i] - world;
         vec3 l = to_light / max(length(to_light), 1e-20);
         float cos_nl = dot(n, l);
         light_sum += u_light_ambient[i] + u_light_diffuse[i] * max(cos_nl, 0.0);

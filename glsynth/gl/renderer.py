@@ -76,12 +76,12 @@ class Renderer:
         self.width, self.height = int(width), int(height)
         self.ctx = ctx or create_context(backend)
         self.ctx.depth_clamp_range = (0.0, 1.0)  # enables GL_DEPTH_CLAMP (see Camera.clip_planes)
-        vert = shader_source("mesh.vert")
+        vert, geom = shader_source("mesh.vert"), shader_source("mesh.geom")
         self.programs = {
-            "gbuffer": self.ctx.program(vertex_shader=vert, fragment_shader=shader_source("gbuffer.frag")),
-            "rgb": self.ctx.program(vertex_shader=vert, fragment_shader=shader_source("phong.frag")),
-            "labels": self.ctx.program(vertex_shader=vert, fragment_shader=shader_source("labels.frag")),
-        }
+            name: self.ctx.program(vertex_shader=vert, geometry_shader=geom,
+                                   fragment_shader=shader_source(frag))
+            for name, frag in (("gbuffer", "gbuffer.frag"), ("rgb", "phong.frag"),
+                               ("labels", "labels.frag"))}
         self._downsample = self.ctx.program(vertex_shader=shader_source("fullscreen.vert"),
                                             fragment_shader=shader_source("downsample.frag"))
         self._empty_vao = self.ctx.vertex_array(self._downsample, [])
@@ -177,7 +177,14 @@ class Renderer:
                    of ``label_textures`` (at most 4 per call)
         Vertex/face labels (anatomy) come from the G-buffer: see ``vertex_label_image``.
         """
-        passes = tuple(passes)
+        # Another library (pyrender, a GUI toolkit) may have made its own context
+        # current since the last call: always draw in ours.
+        with self.ctx:
+            return self._render(mesh, camera, tuple(passes), lights, material,
+                                label_texture, label_textures, supersample)
+
+    def _render(self, mesh, camera, passes, lights, material, label_texture,
+                label_textures, supersample):
         unknown = set(passes) - set(PASSES)
         if unknown:
             raise ValueError(f"unknown pass(es) {sorted(unknown)}; choose from {PASSES}")

@@ -1,0 +1,43 @@
+"""Small meshes with known geometry for the tests."""
+import numpy as np
+import trimesh
+
+import glsynth as gs
+
+
+def random_texture(rng, h=64, w=64):
+    return (rng.random((h, w, 3)) * 255).astype(np.uint8)
+
+
+def plane(rng, size=2.0):
+    """A square in the z = 0 plane, normal +Z, UVs spanning [0, 1]."""
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float) * size / 2
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    uv = (v[:, :2] / size) + 0.5
+    return gs.Mesh(v, f, uvs=uv, texture=random_texture(rng), name="plane")
+
+
+def box(rng, extents=(0.6, 0.4, 0.5)):
+    b = trimesh.creation.box(extents=extents)
+    v = np.asarray(b.vertices)
+    uv = (v[:, [0, 1]] - v[:, [0, 1]].min(0)) / np.ptp(v[:, [0, 1]], 0)
+    return gs.Mesh(v, b.faces, uvs=uv, texture=random_texture(rng), name="box")
+
+
+def sphere(rng, radius=0.3, subdivisions=4):
+    s = trimesh.creation.icosphere(subdivisions, radius=radius)
+    v = np.asarray(s.vertices)
+    uv = np.c_[0.5 + 0.5 * v[:, 0] / radius, 0.5 + 0.5 * v[:, 1] / radius]
+    return gs.Mesh(v, s.faces, uvs=uv, texture=random_texture(rng), name="sphere")
+
+
+def ray_face_depth(mesh, cam, rows, cols, face_ids):
+    """Closed-form depth of the pixel rays hitting the plane of the given faces."""
+    o, d = cam.pixel_rays(rows, cols)
+    a = mesh.vertices[mesh.faces[face_ids, 0]]
+    n = mesh.face_normals[face_ids]
+    t = ((a - o) * n).sum(1) / (d * n).sum(1)
+    hit = o + d * t[:, None]
+    forward = np.asarray(cam.target) - np.asarray(cam.eye)
+    forward /= np.linalg.norm(forward)
+    return (hit - o) @ forward, hit

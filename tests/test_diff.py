@@ -1,0 +1,122 @@
+"""The torch texture path against the GL shading pass, and its gradients."""
+import numpy as np
+import pytest
+import torch
+
+import glsynth as gs
+from glsynth import diff
+from glsynth.lighting import Material, PointLight
+from shapes import box, sphere
+
+
+def _random_lights(rng, cam, n):
+    """Up to n lights whose summed ambient + diffuse stays within the paper's largest
+    (0.99 + 0.99). llvmpipe filters 8-bit textures with 8-bit weights, an error that
+    the total light multiplies."""
+    eye = np.asarray(cam.eye)
+    scale = 1.0 / n
+    return [PointLight(eye + rng.normal(scale=0.3, size=3), ambient=rng.uniform(0, 0.99, 3) * scale,
+                       diffuse=rng.uniform(0.2, 0.99, 3) * scale, specular=rng.uniform(0, 0.5, 3))
+            for _ in range(n)]
+
+
+@pytest.mark.parametrize("trial", range(4))
+def test_torch_shading_matches_gl(renderer, rng, trial):
+    mesh = (sphere if trial % 2 == 0 else box)(rng)
+    tex = (rng.random((int(rng.integers(16, 300)), int(rng.integers(16, 300)), 3)) * 255).astype(np.uint8)
+    mesh = mesh.copy_with(texture=tex)
+    d = rng.normal(size=3)
+    eye = d / np.linalg.norm(d) * rng.uniform(0.8, 3.0)
+    cam = gs.Camera.look_at(eye, rng.normal(scale=0.05, size=3), width=renderer.width,
+                            height=renderer.height, fov_deg=rng.uniform(20, 60))
+    lights = _random_lights(rng, cam, int(rng.integers(1, 4)))
+    mat = Material(specular=rng.uniform(0, 0.6, 3), shininess=rng.uniform(1, 200))
+    out = renderer.render(mesh, cam, passes=("gbuffer", "rgb"), lights=lights, material=mat)
+    img = diff.shade(out, mesh, torch.tensor(tex / 255.0, dtype=torch.float32), cam, lights, mat)
+    fg = out["face_id"] >= 0
+    assert fg.sum() > 100
+    err = np.abs(img.numpy() - out["rgb"])[fg]
+    assert err.max() <= 2 / 255, f"max |torch - GL| = {err.max() * 255:.2f}/255"
+    assert (img.numpy()[~fg] == 0).all()
+
+
+def test_default_light_is_at_the_camera(renderer, rng):
+    mesh = sphere(rng)
+    cam = gs.Camera.look_at((0.1, 0.2, 1.3), (0, 0, 0), width=renderer.width, height=renderer.height)
+    out = renderer.render(mesh, cam, passes=("gbuffer", "rgb"))
+    tex = torch.tensor(mesh.texture / 255.0)
+    img = diff.shade(out, mesh, tex, cam)
+    fg = out["face_id"] >= 0
+    assert np.abs(img.numpy() - out["rgb"])[fg].max() <= 2 / 255
+
+
+def test_batched_views_and_channels_first(renderer, rng):
+    mesh = sphere(rng)
+    cams = [gs.Camera.look_at(e, (0, 0, 0), width=renderer.width, height=renderer.height)
+            for e in ((0, 0, 1.2), (0.9, 0.3, 0.6), (-0.5, 0.8, 0.7))]
+    outs = [renderer.render(mesh, c, passes=("gbuffer",)) for c in cams]
+    tex = torch.tensor(mesh.texture / 255.0, dtype=torch.float32)
+    batch = diff.shade(outs, mesh, tex.permute(2, 0, 1)[None], cams)
+    assert batch.shape == (3, renderer.height, renderer.width, 3)
+    for i, (o, c) in enumerate(zip(outs, cams)):
+        single = diff.shade(o, mesh, tex, c)
+        torch.testing.assert_close(batch[i], single)
+
+
+def test_gradcheck_float64(renderer, rng):
+    mesh = sphere(rng, subdivisions=2)
+    cam = gs.Camera.look_at((0.0, 0.1, 1.0), (0, 0, 0), width=renderer.width, height=renderer.height)
+    out = renderer.render(mesh, cam, passes=("gbuffer",))
+    # a small crop keeps gradcheck's finite differences cheap
+    r0, c0 = renderer.height // 2 - 3, renderer.width // 2 - 3
+    crop = {k: v[r0:r0 + 6, c0:c0 + 6] for k, v in out.items()}
+    tex = torch.tensor(rng.random((8, 8, 3)), dtype=torch.float64, requires_grad=True)
+    lights = [PointLight(cam.eye, ambient=0.4, diffuse=0.5, specular=0.0)]  # no clamping at 1
+    assert torch.autograd.gradcheck(lambda t: diff.shade(crop, mesh, t, cam, lights), (tex,),
+                                    eps=1e-6, atol=1e-5)
+
+
+def test_gradient_only_on_sampled_texels(renderer, rng):
+    mesh = sphere(rng)
+    th, tw = 64, 64
+    cam = gs.Camera.look_at((0.2, 0.0, 1.0), (0, 0, 0), width=renderer.width, height=renderer.height)
+    out = renderer.render(mesh, cam, passes=("gbuffer",))
+    tex = torch.tensor(rng.random((th, tw, 3)), dtype=torch.float32, requires_grad=True)
+    img = diff.shade(out, mesh, tex, cam, [PointLight(cam.eye, ambient=0.3, diffuse=0.3, specular=0.0)])
+    img.sum().backward()
+    grad = tex.grad.abs().sum(-1).numpy()
+    # texels that some visible pixel's bilinear footprint touches
+    fg = out["face_id"] >= 0
+    uv = out["uv"][fg]
+    x = uv[:, 0] * tw - 0.5
+    y = (1 - uv[:, 1]) * th - 0.5
+    touched = np.zeros((th, tw), bool)
+    for dx in (0, 1):
+        for dy in (0, 1):
+            xi = np.clip(np.floor(x).astype(int) + dx, 0, tw - 1)
+            yi = np.clip(np.floor(y).astype(int) + dy, 0, th - 1)
+            touched[yi, xi] = True
+    assert (grad[~touched] == 0).all()
+    assert (grad[touched] > 0).mean() > 0.9
+    assert (grad > 0).sum() < th * tw  # the back of the sphere gets nothing
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_shade_on_cuda_matches_cpu(renderer, rng):
+    mesh = sphere(rng)
+    cam = gs.Camera.look_at((0, 0, 1.3), (0, 0, 0), width=renderer.width, height=renderer.height)
+    out = renderer.render(mesh, cam, passes=("gbuffer",))
+    tex = torch.tensor(mesh.texture / 255.0, dtype=torch.float32)
+    cpu = diff.shade(out, mesh, tex, cam)
+    gpu = diff.shade(out, mesh, tex.cuda(), cam)
+    torch.testing.assert_close(gpu.cpu(), cpu, atol=1e-5, rtol=1e-5)
+
+
+def test_bad_texture_shape(renderer, rng):
+    mesh = sphere(rng)
+    cam = gs.Camera.look_at((0, 0, 1.3), (0, 0, 0), width=renderer.width, height=renderer.height)
+    out = renderer.render(mesh, cam, passes=("gbuffer",))
+    with pytest.raises(ValueError, match="texture must be"):
+        diff.shade(out, mesh, torch.zeros(2, 3, 8, 8), cam)
+    with pytest.raises(ValueError, match="gbuffer"):
+        diff.shade({"rgb": out["face_id"]}, mesh, torch.zeros(8, 8, 3), cam)
