@@ -41,6 +41,9 @@ class Camera:
     far: float | None = None
     # Extra description kept for the dataset's JSON (surface point, normal, w).
     surface: dict | None = None
+    # (x0, y0, full_width, full_height): this camera renders the width x height
+    # sub-rectangle at (x0, y0) of a full_width x full_height image (see ``crop``).
+    window: tuple | None = None
 
     # ---- construction -------------------------------------------------------------
     @classmethod
@@ -79,6 +82,13 @@ class Camera:
     def aspect(self) -> float:
         return self.width / self.height
 
+    def crop(self, x0, y0, width, height) -> "Camera":
+        """The same view restricted to pixels [y0, y0+height) x [x0, x0+width): an
+        off-axis camera, so only that region is rasterised."""
+        fx0, fy0, fw, fh = self.window or (0, 0, self.width, self.height)
+        return Camera(self.eye, self.target, self.up, self.fov_deg, int(width), int(height),
+                      self.near, self.far, self.surface, (fx0 + int(x0), fy0 + int(y0), fw, fh))
+
     def view_matrix(self) -> np.ndarray:
         """4x4 world-to-view matrix (float64)."""
         eye = np.asarray(self.eye)
@@ -91,17 +101,21 @@ class Camera:
         return m
 
     def projection_matrix(self, near=None, far=None) -> np.ndarray:
-        """4x4 OpenGL projection (clip z in [-w, w]) for the given or stored planes."""
+        """4x4 OpenGL projection (clip z in [-w, w]) for the given or stored planes,
+        built from ``intrinsics`` so that cropped (off-axis) cameras work too."""
         near = self.near if near is None else near
         far = self.far if far is None else far
         if near is None or far is None:
             raise ValueError("near/far not set: pass them or use Camera.clip_planes")
         if not (0 < near < far):
             raise ValueError(f"need 0 < near < far, got near={near} far={far}")
-        t = 1.0 / math.tan(math.radians(self.fov_deg) / 2)
+        k = self.intrinsics()
+        w, h = self.width, self.height
         p = np.zeros((4, 4))
-        p[0, 0] = t / self.aspect
-        p[1, 1] = t
+        p[0, 0] = 2 * k[0, 0] / w
+        p[0, 2] = 1 - 2 * k[0, 2] / w
+        p[1, 1] = 2 * k[1, 1] / h
+        p[1, 2] = 2 * k[1, 2] / h - 1
         p[2, 2] = -(far + near) / (far - near)
         p[2, 3] = -2 * far * near / (far - near)
         p[3, 2] = -1.0
@@ -109,8 +123,9 @@ class Camera:
 
     def intrinsics(self) -> np.ndarray:
         """3x3 pinhole matrix K in pixels (row 0 at the top, pixel centres at +0.5)."""
-        fy = self.height / 2 / math.tan(math.radians(self.fov_deg) / 2)
-        return np.array([[fy, 0.0, self.width / 2], [0.0, fy, self.height / 2], [0, 0, 1.0]])
+        x0, y0, fw, fh = self.window or (0, 0, self.width, self.height)
+        f = fh / 2 / math.tan(math.radians(self.fov_deg) / 2)
+        return np.array([[f, 0.0, fw / 2 - x0], [0.0, f, fh / 2 - y0], [0, 0, 1.0]])
 
     def clip_planes(self, bounds_min, bounds_max, vertices=None):
         """Near/far planes that keep depth precise for this camera and scene.
@@ -141,6 +156,8 @@ class Camera:
     def to_dict(self) -> dict:
         d = {"eye": list(self.eye), "target": list(self.target), "up": list(self.up),
              "fov_deg": self.fov_deg, "width": self.width, "height": self.height}
+        if self.window is not None:
+            d["window"] = list(self.window)
         if self.surface is not None:
             d.update(self.surface)
         return d
@@ -156,6 +173,8 @@ class Camera:
         return cam
 
     def with_size(self, width, height) -> "Camera":
+        if self.window is not None:
+            raise ValueError("a cropped camera keeps its own size")
         return Camera(self.eye, self.target, self.up, self.fov_deg, int(width), int(height),
                       self.near, self.far, self.surface)
 

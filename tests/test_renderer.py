@@ -235,3 +235,16 @@ def test_degenerate_faces_render(renderer, rng):
     out = renderer.render(mesh, cam, passes=("gbuffer", "rgb"))
     assert np.isfinite(out["rgb"]).all() and np.isfinite(out["bary"]).all()
     assert out["face_id"].max() < len(base.faces)
+
+
+def test_cropped_camera_renders_the_same_pixels(renderer, rng):
+    mesh = sphere(rng)
+    cam = gs.Camera.look_at(rng.normal(size=3) * 0.2 + (0, 0, 1.3), (0, 0, 0),
+                            width=renderer.width, height=renderer.height)
+    full = renderer.render(mesh, cam, passes=("gbuffer", "rgb"))
+    x0, y0 = int(rng.integers(0, renderer.width - 40)), int(rng.integers(0, renderer.height - 30))
+    crop = renderer.render(mesh, cam.crop(x0, y0, 40, 30), passes=("gbuffer", "rgb"))
+    assert crop["face_id"].shape == (30, 40)
+    assert (crop["face_id"] == full["face_id"][y0:y0 + 30, x0:x0 + 40]).all()
+    np.testing.assert_allclose(crop["depth"], full["depth"][y0:y0 + 30, x0:x0 + 40], rtol=1e-5)
+    assert np.abs(crop["rgb"] - full["rgb"][y0:y0 + 30, x0:x0 + 40]).max() <= 1 / 255

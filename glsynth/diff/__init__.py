@@ -21,7 +21,7 @@ import torch.nn.functional as F
 
 from ..lighting import Material, PointLight, check_lights
 
-__all__ = ["interpolate", "texture", "phong", "shade", "GBuffer"]
+__all__ = ["interpolate", "texture", "phong", "phong_terms", "shade", "surface", "GBuffer"]
 
 
 class GBuffer:
@@ -82,11 +82,18 @@ def phong(texel, position, normal, eye, lights, material):
 
     texel, position, normal: (B, H, W, 3); eye: (B, 3). Normals are normalised here.
     """
-    dt, dev = texel.dtype, texel.device
+    light_sum, spec_sum = phong_terms(position, normal, eye, lights, material)
+    return (texel * light_sum + spec_sum).clamp(0, 1)
+
+
+def phong_terms(position, normal, eye, lights, material):
+    """The texture-independent Phong factors: ``colour = texel * light + specular``.
+    Useful when several textures are shaded under the same view (blending)."""
+    dt, dev = position.dtype, position.device
     n = F.normalize(normal, dim=-1, eps=1e-30)
     view_dir = F.normalize(eye[:, None, None, :] - position, dim=-1, eps=1e-20)
-    light_sum = torch.zeros_like(texel)
-    spec_sum = torch.zeros_like(texel)
+    light_sum = torch.zeros_like(position)
+    spec_sum = torch.zeros_like(position)
     ks = torch.tensor(material.specular, dtype=dt, device=dev)
     for light in lights:
         lp = torch.tensor(light.position, dtype=dt, device=dev)
@@ -98,7 +105,7 @@ def phong(texel, position, normal, eye, lights, material):
         rv = (r * view_dir).sum(-1, keepdim=True).clamp(min=0)
         spec = torch.tensor(light.specular, dtype=dt, device=dev) * ks * rv.pow(material.shininess)
         spec_sum = spec_sum + torch.where(cos_nl > 0, spec, torch.zeros_like(spec))
-    return (texel * light_sum + spec_sum).clamp(0, 1)
+    return light_sum, spec_sum
 
 
 def shade(outs, mesh, tex, cameras, lights=None, material=None):
@@ -117,20 +124,30 @@ def shade(outs, mesh, tex, cameras, lights=None, material=None):
         cams = cams * gbuf.face_id.shape[0]
     if len(cams) != gbuf.face_id.shape[0]:
         raise ValueError(f"{len(cams)} cameras for {gbuf.face_id.shape[0]} G-buffers")
-    material = material or Material()
-    dev, dt = tex.device, tex.dtype
-    faces = torch.as_tensor(mesh.faces, device=dev)
-    face_uvs = torch.as_tensor(mesh.face_uvs, device=dev)
-    uv = interpolate(torch.as_tensor(mesh.uvs, device=dev, dtype=dt), face_uvs, gbuf)
-    pos = interpolate(torch.as_tensor(mesh.vertices, device=dev, dtype=dt), faces, gbuf)
-    nrm = interpolate(torch.as_tensor(mesh.vertex_normals, device=dev, dtype=dt), faces, gbuf)
+    uv, pos, nrm = surface(gbuf, mesh, device=tex.device, dtype=tex.dtype)
     texel = texture(tex, uv)[..., :3]
-    eye = torch.tensor(np.array([c.eye for c in cams]), device=dev, dtype=dt)
-    if lights is None:
-        images = [phong(texel[i:i + 1], pos[i:i + 1], nrm[i:i + 1], eye[i:i + 1],
-                        [PointLight(c.eye)], material) for i, c in enumerate(cams)]
-        img = torch.cat(images)
-    else:
-        img = phong(texel, pos, nrm, eye, check_lights(lights), material)
-    img = img * gbuf.mask[..., None].to(dt)
+    light, spec = lighting(pos, nrm, cams, lights, material)
+    img = (texel * light + spec).clamp(0, 1) * gbuf.mask[..., None].to(tex.dtype)
     return img[0] if single else img
+
+
+def surface(gbuf: GBuffer, mesh, device=None, dtype=torch.float32):
+    """Per-pixel UV (B,H,W,2), position and normal (B,H,W,3) of the visible surface."""
+    faces = torch.as_tensor(mesh.faces, device=device)
+    uv = interpolate(torch.as_tensor(mesh.uvs, device=device, dtype=dtype),
+                     torch.as_tensor(mesh.face_uvs, device=device), gbuf)
+    pos = interpolate(torch.as_tensor(mesh.vertices, device=device, dtype=dtype), faces, gbuf)
+    nrm = interpolate(torch.as_tensor(mesh.vertex_normals, device=device, dtype=dtype), faces, gbuf)
+    return uv, pos, nrm
+
+
+def lighting(pos, nrm, cams, lights=None, material=None):
+    """``phong_terms`` for a batch of views; lights=None puts the paper's blending light
+    (ambient 0.5, diffuse 0.5, specular 0.025) at each camera."""
+    material = material or Material()
+    eye = torch.tensor(np.array([c.eye for c in cams]), device=pos.device, dtype=pos.dtype)
+    if lights is not None:
+        return phong_terms(pos, nrm, eye, check_lights(lights), material)
+    terms = [phong_terms(pos[i:i + 1], nrm[i:i + 1], eye[i:i + 1], [PointLight(c.eye)], material)
+             for i, c in enumerate(cams)]
+    return torch.cat([t[0] for t in terms]), torch.cat([t[1] for t in terms])

@@ -82,6 +82,9 @@ class Renderer:
                                    fragment_shader=shader_source(frag))
             for name, frag in (("gbuffer", "gbuffer.frag"), ("rgb", "phong.frag"),
                                ("labels", "labels.frag"))}
+        self.programs["uvspace"] = self.ctx.program(
+            vertex_shader=shader_source("uvspace.vert"), geometry_shader=geom,
+            fragment_shader=shader_source("gbuffer.frag"))
         self._downsample = self.ctx.program(vertex_shader=shader_source("fullscreen.vert"),
                                             fragment_shader=shader_source("downsample.frag"))
         self._empty_vao = self.ctx.vertex_array(self._downsample, [])
@@ -142,9 +145,12 @@ class Renderer:
 
     def _fbo(self, kind, w, h):
         key = (kind, w, h)
-        fbo = self._fbos.get(key)
+        fbo = self._fbos.pop(key, None)
         if fbo is not None:
+            self._fbos[key] = fbo  # most recently used last
             return fbo
+        if len(self._fbos) >= 12:  # crops of many sizes: drop the least recently used
+            self._release_fbo(self._fbos.pop(next(iter(self._fbos))))
         ctx = self.ctx
         depth = ctx.depth_renderbuffer((w, h))
         if kind == "gbuffer":
@@ -188,8 +194,9 @@ class Renderer:
         unknown = set(passes) - set(PASSES)
         if unknown:
             raise ValueError(f"unknown pass(es) {sorted(unknown)}; choose from {PASSES}")
-        if (camera.width, camera.height) != (self.width, self.height):
+        if camera.window is None and (camera.width, camera.height) != (self.width, self.height):
             camera = camera.with_size(self.width, self.height)
+        size = (camera.width, camera.height)
         gpu = self._gpu_mesh(mesh)
         view = camera.view_matrix()
         if camera.near is not None and camera.far is not None:
@@ -203,13 +210,13 @@ class Renderer:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         if "gbuffer" in passes:
-            out.update(self._render_gbuffer(gpu, mats))
+            out.update(self._render_gbuffer(gpu, mats, size))
         if "rgb" in passes:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
-            out.update(self._render_rgb(gpu, mats, camera, lights, material, supersample))
+            out.update(self._render_rgb(gpu, mats, camera, lights, material, supersample, size))
         if "labels" in passes:
-            out.update(self._render_labels(gpu, mats, label_texture, label_textures))
+            out.update(self._render_labels(gpu, mats, label_texture, label_textures, size))
         return out
 
     def _read(self, fbo, attachment, components, dtype, np_dtype):
@@ -218,8 +225,8 @@ class Renderer:
         fbo.read_into(buf, components=components, attachment=attachment, dtype=dtype, alignment=1)
         return np.ascontiguousarray(buf[::-1])
 
-    def _render_gbuffer(self, gpu, mats):
-        fbo = self._fbo("gbuffer", self.width, self.height)
+    def _render_gbuffer(self, gpu, mats, size):
+        fbo = self._fbo("gbuffer", *size)
         # moderngl clears every attachment with the same (float) value, so the shader
         # writes face id + 1 over a cleared 0, and -1 lands in the depth channel.
         self._draw(gpu, "gbuffer", fbo, mats, clear=(0.0, 0.0, 0.0, -1.0))
@@ -230,7 +237,7 @@ class Renderer:
         return {"face_id": face, "bary": np.ascontiguousarray(bd[..., :3]),
                 "depth": np.ascontiguousarray(bd[..., 3]), "uv": uv}
 
-    def _render_rgb(self, gpu, mats, camera, lights, material, supersample):
+    def _render_rgb(self, gpu, mats, camera, lights, material, supersample, size):
         k = int(supersample)
         if not 1 <= k <= MAX_SUPERSAMPLE:
             raise ValueError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
@@ -250,13 +257,13 @@ class Renderer:
         prog["u_eye"].value = tuple(camera.eye)
         gpu.texture.use(0)
         prog["u_texture"].value = 0
-        fbo = self._fbo("rgb", self.width * k, self.height * k)
+        fbo = self._fbo("rgb", size[0] * k, size[1] * k)
         self._draw(gpu, "rgb", fbo, mats)
         if k > 1:
             src = fbo.color_attachments[0]
-            fbo = self._fbo("resolve", self.width, self.height)
+            fbo = self._fbo("resolve", *size)
             fbo.use()
-            fbo.viewport = (0, 0, self.width, self.height)
+            fbo.viewport = (0, 0, *size)
             self.ctx.disable(moderngl.DEPTH_TEST)
             src.use(0)
             self._downsample["u_source"].value = 0
@@ -266,7 +273,7 @@ class Renderer:
         rgba = self._read(fbo, 0, 4, "f4", np.float32)
         return {"rgb": np.ascontiguousarray(rgba[..., :3]), "alpha": np.ascontiguousarray(rgba[..., 3])}
 
-    def _render_labels(self, gpu, mats, label_texture, label_textures):
+    def _render_labels(self, gpu, mats, label_texture, label_textures, size):
         if label_textures is None:
             if label_texture is None:
                 raise ValueError("the labels pass needs label_texture= or label_textures=")
@@ -282,7 +289,7 @@ class Renderer:
         for i in range(len(items), MAX_LABEL_TARGETS):  # unused samplers still need a valid texture
             self._label_texture(items[0][1]).use(i)
         prog["u_count"].value = len(items)
-        fbo = self._fbo("labels", self.width, self.height)
+        fbo = self._fbo("labels", *size)
         self._draw(gpu, "labels", fbo, mats)
         return {name: self._read(fbo, i, 1, "u2", np.uint16) for i, (name, _) in enumerate(items)}
 
@@ -295,6 +302,33 @@ class Renderer:
         fbo.clear(*clear, depth=1.0)
         gpu.vaos[prog_name].render(moderngl.TRIANGLES, vertices=gpu.count)
 
+    def render_uv_space(self, mesh: Mesh, width: int, height: int) -> dict:
+        """Rasterise ``mesh`` in texture space at ``width`` x ``height`` texels.
+
+        Returns face_id (int32, -1 where no face covers the texel centre) and bary
+        (float32 x3) per texel, row 0 = v 1 (the texture's top row). With them a texel's
+        3D position is ``bary @ vertices[faces[face_id]]``: the inverse of texturing,
+        used to paint textures from 3D and to pull view pixels into texels.
+        """
+        if mesh.uvs is None:
+            raise ValueError(f"{mesh.name}: mesh has no UVs to rasterise")
+        with self.ctx:
+            gpu = self._gpu_mesh(mesh)
+            fbo = self._fbo("gbuffer", int(width), int(height))
+            self.ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE | moderngl.BLEND)
+            self._draw(gpu, "uvspace", fbo, {}, clear=(0.0, 0.0, 0.0, -1.0))
+            face = self._read(fbo, 0, 1, "i4", np.int32)
+            face -= 1
+            bary = self._read(fbo, 1, 4, "f4", np.float32)[..., :3]
+        return {"face_id": face, "bary": np.ascontiguousarray(bary)}
+
+    @staticmethod
+    def _release_fbo(fbo):
+        for att in list(fbo.color_attachments) + [fbo.depth_attachment]:
+            if att is not None:
+                att.release()
+        fbo.release()
+
     def release(self):
         for _, gpu in list(self._meshes.values()):
             gpu.release()
@@ -303,7 +337,7 @@ class Renderer:
             tex.release()
         self._label_tex.clear()
         for fbo in self._fbos.values():
-            fbo.release()
+            self._release_fbo(fbo)
         self._fbos.clear()
 
 

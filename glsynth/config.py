@@ -1,0 +1,255 @@
+"""Configuration: YAML validated into dataclasses, with ``key.sub=value`` overrides.
+
+Every error names the offending key and value (and the file). Ranges are [lo, hi] lists.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import yaml
+
+from .resources import config_dir
+
+
+class ConfigError(ValueError):
+    """A configuration file or override is invalid; the message names the key."""
+
+
+OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth")
+BLEND_METHODS = ("deep", "poisson", "paste")
+FEATURES = ("auto", "vgg16", "filters")
+
+
+@dataclass
+class BodiesConfig:
+    source: str = "builtin"           # 'builtin' or a folder of 3DBodyTex scans / meshes
+    count: int = 2
+    texture_size: int = 2048
+    fitzpatrick: list = field(default_factory=lambda: [1, 6])
+    poses: list = field(default_factory=lambda: ["a-pose", "arms-down", "slight-turn"])
+
+
+@dataclass
+class LesionsConfig:
+    source: str = "procedural"        # 'procedural' or a folder
+    layout: str = "fitz17k"           # 'fitz17k' or 'pairs'
+    per_body: int = 2
+    colour_constancy: bool = True     # Shades of Gray on real lesion images (paper)
+    size: list = field(default_factory=lambda: [0.15, 0.4])  # lesion extent / view width
+
+
+@dataclass
+class PasteConfig:
+    view_size: int = 512
+    fov_deg: float = 30.0
+    w: list = field(default_factory=lambda: [0.4, 0.6])
+    max_depth_change: float = 0.02   # appendix A threshold c
+    dilation: int = 9                 # pixels added around the lesion mask (a_xd)
+    attempts: int = 60                # locations tried per lesion before giving up
+
+
+@dataclass
+class BlendConfig:
+    method: str = "deep"              # deep | poisson | paste
+    steps: int = 400
+    lr: float = 0.005
+    optimizer: str = "adam"           # adam | lbfgs
+    content: float = 2.0
+    style: float = 1e6
+    gradient: float = 1e5
+    tv: float = 1e-4
+    features: str = "auto"            # auto (VGG16 if weights found, else filters) | vgg16 | filters
+    vgg_weights: str | None = None
+    pad: int = 16                     # pixels around the lesion box where the loss is computed
+    perturb_deg: float = 4.0          # camera jitter per step (degrees around the surface point)
+    perturb_w: float = 0.1            # relative jitter of w per step
+
+
+@dataclass
+class ViewsConfig:
+    per_body: int = 8
+    size: int = 512
+    fov_deg: float = 30.0
+    supersample: int = 2
+    w: list = field(default_factory=lambda: [0.1, 1.3])
+    lesion_bias: float = 0.7          # probability that a view is centred on a lesion
+    min_skin: float = 0.1
+    min_lesion: float = 0.0
+    ambient: list = field(default_factory=lambda: [0.2, 0.99])
+    diffuse: list = field(default_factory=lambda: [0.2, 0.99])
+    specular: list = field(default_factory=lambda: [0.0, 0.1])
+    material_specular: list = field(default_factory=lambda: [0.0, 0.05])
+    shininess: list = field(default_factory=lambda: [30.0, 60.0])
+    light_offset: list = field(default_factory=lambda: [0.0, 0.5])  # light distance from camera (m)
+    attempts: int = 50
+
+
+@dataclass
+class BackgroundsConfig:
+    source: str = "procedural"
+    count: int = 16                   # procedural rooms to make
+    blur: list = field(default_factory=lambda: [0.0, 3.0])
+
+
+@dataclass
+class Config:
+    seed: int = 0
+    bodies: BodiesConfig = field(default_factory=BodiesConfig)
+    lesions: LesionsConfig = field(default_factory=LesionsConfig)
+    paste: PasteConfig = field(default_factory=PasteConfig)
+    blend: BlendConfig = field(default_factory=BlendConfig)
+    views: ViewsConfig = field(default_factory=ViewsConfig)
+    backgrounds: BackgroundsConfig = field(default_factory=BackgroundsConfig)
+    outputs: list = field(default_factory=lambda: list(OUTPUTS))
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def load_config(path=None, overrides=()) -> Config:
+    """Read a YAML config (default: the embedded configs/default.yaml), apply
+    ``key.sub=value`` overrides (values parsed as YAML), validate."""
+    path = os.fspath(path) if path is not None else str(config_dir() / "default.yaml")
+    try:
+        with open(path) as fh:
+            raw = yaml.safe_load(fh) or {}
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: top level must be a mapping, got {type(raw).__name__}")
+    for item in overrides:
+        _apply_override(raw, item)
+    return from_dict(raw, source=path)
+
+
+def _apply_override(raw: dict, item: str):
+    if "=" not in item:
+        raise ConfigError(f"override {item!r} must look like key.sub=value")
+    key, value = item.split("=", 1)
+    node = raw
+    parts = key.strip().split(".")
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+        if not isinstance(node, dict):
+            raise ConfigError(f"override {item!r}: {p!r} is not a section")
+    try:
+        node[parts[-1]] = yaml.safe_load(value)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"override {item!r}: value is not valid YAML ({exc})") from None
+
+
+def from_dict(raw: dict, source="config") -> Config:
+    cfg = _build(Config, copy.deepcopy(raw), "", source)
+    validate(cfg, source)
+    return cfg
+
+
+def _build(cls, raw, prefix, source):
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: {prefix or 'top level'} must be a mapping, got {raw!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in raw.items():
+        name = f"{prefix}{key}"
+        if key not in fields:
+            raise ConfigError(f"{source}: unknown key {name!r} (known: {', '.join(sorted(fields))})")
+        default = fields[key].default_factory() if fields[key].default_factory is not dataclasses.MISSING \
+            else fields[key].default
+        if dataclasses.is_dataclass(default):
+            kwargs[key] = _build(type(default), value, f"{name}.", source)
+        else:
+            kwargs[key] = _coerce(value, default, name, source)
+    return cls(**kwargs)
+
+
+def _coerce(value, default, name, source) -> Any:
+    def bad(expected):
+        return ConfigError(f"{source}: {name} must be {expected}, got {value!r}")
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise bad("true or false")
+        return value
+    if isinstance(default, int) and not isinstance(default, bool):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad("an integer")
+        return value
+    if isinstance(default, float) or (default is None and isinstance(value, float)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise bad("a number")
+        return float(value)
+    if isinstance(default, list):
+        if not isinstance(value, list):
+            raise bad("a list")
+        return value
+    if isinstance(default, str) or default is None:
+        if value is not None and not isinstance(value, str):
+            raise bad("a string")
+        return value
+    return value
+
+
+def _range(cfg_value, name, source, lo=None, hi=None, integer=False):
+    v = cfg_value
+    if len(v) != 2 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        raise ConfigError(f"{source}: {name} must be a [low, high] pair of numbers, got {v!r}")
+    if v[0] > v[1]:
+        raise ConfigError(f"{source}: {name} low > high in {v!r}")
+    if (lo is not None and v[0] < lo) or (hi is not None and v[1] > hi):
+        raise ConfigError(f"{source}: {name} must lie in [{lo}, {hi}], got {v!r}")
+
+
+def validate(cfg: Config, source="config"):
+    def need(cond, name, value, what):
+        if not cond:
+            raise ConfigError(f"{source}: {name} {what}, got {value!r}")
+    need(cfg.seed >= 0, "seed", cfg.seed, "must be >= 0")
+    b = cfg.bodies
+    need(b.count >= 1, "bodies.count", b.count, "must be >= 1")
+    need(64 <= b.texture_size <= 8192, "bodies.texture_size", b.texture_size, "must be in [64, 8192]")
+    _range(b.fitzpatrick, "bodies.fitzpatrick", source, 1, 6)
+    need(bool(b.poses), "bodies.poses", b.poses, "must list at least one pose")
+    le = cfg.lesions
+    need(le.layout in ("fitz17k", "pairs"), "lesions.layout", le.layout, "must be 'fitz17k' or 'pairs'")
+    need(le.per_body >= 0, "lesions.per_body", le.per_body, "must be >= 0")
+    _range(le.size, "lesions.size", source, 0.01, 1.5)
+    p = cfg.paste
+    need(32 <= p.view_size <= 4096, "paste.view_size", p.view_size, "must be in [32, 4096]")
+    need(0 < p.fov_deg < 170, "paste.fov_deg", p.fov_deg, "must be in (0, 170)")
+    _range(p.w, "paste.w", source, 1e-4, 1e4)
+    need(p.max_depth_change > 0, "paste.max_depth_change", p.max_depth_change, "must be > 0")
+    need(p.dilation >= 0, "paste.dilation", p.dilation, "must be >= 0")
+    need(p.attempts >= 1, "paste.attempts", p.attempts, "must be >= 1")
+    bl = cfg.blend
+    need(bl.method in BLEND_METHODS, "blend.method", bl.method, f"must be one of {BLEND_METHODS}")
+    need(bl.steps >= 0, "blend.steps", bl.steps, "must be >= 0")
+    need(bl.lr > 0, "blend.lr", bl.lr, "must be > 0")
+    need(bl.optimizer in ("adam", "lbfgs"), "blend.optimizer", bl.optimizer, "must be 'adam' or 'lbfgs'")
+    for k in ("content", "style", "gradient", "tv"):
+        v = getattr(bl, k)
+        need(0 <= v < 1e12, f"blend.{k}", v, "must be in [0, 1e12)")
+    need(bl.features in FEATURES, "blend.features", bl.features, f"must be one of {FEATURES}")
+    need(bl.pad >= 0, "blend.pad", bl.pad, "must be >= 0")
+    v = cfg.views
+    need(v.per_body >= 0, "views.per_body", v.per_body, "must be >= 0")
+    need(32 <= v.size <= 4096, "views.size", v.size, "must be in [32, 4096]")
+    need(1 <= v.supersample <= 8, "views.supersample", v.supersample, "must be in [1, 8]")
+    need(0 < v.fov_deg < 170, "views.fov_deg", v.fov_deg, "must be in (0, 170)")
+    _range(v.w, "views.w", source, 1e-4, 1e4)
+    need(0 <= v.lesion_bias <= 1, "views.lesion_bias", v.lesion_bias, "must be in [0, 1]")
+    need(0 <= v.min_skin <= 1, "views.min_skin", v.min_skin, "must be in [0, 1]")
+    need(0 <= v.min_lesion <= 1, "views.min_lesion", v.min_lesion, "must be in [0, 1]")
+    for k in ("ambient", "diffuse", "specular", "material_specular"):
+        _range(getattr(v, k), f"views.{k}", source, 0, 10)
+    _range(v.shininess, "views.shininess", source, 1e-3, 1e4)
+    _range(v.light_offset, "views.light_offset", source, 0, 1e3)
+    need(v.attempts >= 1, "views.attempts", v.attempts, "must be >= 1")
+    _range(cfg.backgrounds.blur, "backgrounds.blur", source, 0, 50)
+    need(cfg.backgrounds.count >= 1, "backgrounds.count", cfg.backgrounds.count, "must be >= 1")
+    bad = [o for o in cfg.outputs if o not in OUTPUTS]
+    need(not bad and cfg.outputs, "outputs", cfg.outputs, f"must be a non-empty subset of {list(OUTPUTS)}")

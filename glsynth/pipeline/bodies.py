@@ -1,0 +1,72 @@
+"""Which bodies a run uses: built-in anny bodies or a folder of scans, plus the
+texel geometry (which surface point each texel shows) that pasting needs."""
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from ..config import Config
+from .seeding import rng_for
+
+log = logging.getLogger(__name__)
+
+
+def body_ids(cfg: Config) -> list[str]:
+    if cfg.bodies.source == "builtin":
+        return [f"body{i:03d}" for i in range(cfg.bodies.count)]
+    folders = scan_folders(cfg.bodies.source)
+    return [os.path.basename(f) for f in folders][: cfg.bodies.count]
+
+
+def scan_folders(root) -> list[str]:
+    if not os.path.isdir(root):
+        raise FileNotFoundError(f"bodies.source {root!r}: folder not found")
+    found = sorted(os.path.join(root, d) for d in os.listdir(root)
+                   if os.path.isdir(os.path.join(root, d)))
+    if not found:
+        raise FileNotFoundError(f"bodies.source {root!r}: no scan folders inside")
+    return found
+
+
+def load_body(cfg: Config, body_id: str):
+    """The Body for ``body_id`` (built-in bodies are cached on disk by glsynth.assets)."""
+    from .. import assets
+    if cfg.bodies.source == "builtin":
+        index = int(body_id[4:])
+        rng = rng_for(cfg.seed, "body", index)
+        lo, hi = cfg.bodies.fitzpatrick
+        return assets.make_body(seed=int(rng.integers(0, 2**31 - 1)),
+                                fitzpatrick=int(rng.integers(lo, hi + 1)),
+                                pose=str(rng.choice(cfg.bodies.poses)),
+                                texture_size=cfg.bodies.texture_size)
+    return assets.load_bodytex(os.path.join(cfg.bodies.source, body_id))
+
+
+@dataclass
+class TexelGeometry:
+    """For every texel covered by a face: its face, 3D position and unit normal."""
+
+    rows: np.ndarray      # (N,) texel rows (row 0 = v 1)
+    cols: np.ndarray
+    faces: np.ndarray     # (N,) face index
+    points: np.ndarray    # (N, 3) float64
+    normals: np.ndarray   # (N, 3) float64
+    covered: np.ndarray   # (H, W) bool
+
+    @classmethod
+    def of(cls, renderer, mesh):
+        h, w = mesh.texture.shape[:2]
+        raster = renderer.render_uv_space(mesh, w, h)
+        covered = raster["face_id"] >= 0
+        rows, cols = np.nonzero(covered)
+        faces = raster["face_id"][rows, cols]
+        bary = raster["bary"][rows, cols].astype(np.float64)
+        corners = mesh.faces[faces]
+        points = np.einsum("nk,nkj->nj", bary, mesh.vertices[corners])
+        normals = np.einsum("nk,nkj->nj", bary, mesh.vertex_normals[corners])
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        return cls(rows, cols, faces, points, normals, covered)
