@@ -10,13 +10,9 @@ from shapes import box, sphere
 
 
 def _random_lights(rng, cam, n):
-    """Up to n lights whose summed ambient + diffuse stays within the paper's largest
-    (0.99 + 0.99). llvmpipe filters 8-bit textures with 8-bit weights, an error that
-    the total light multiplies."""
     eye = np.asarray(cam.eye)
-    scale = 1.0 / n
-    return [PointLight(eye + rng.normal(scale=0.3, size=3), ambient=rng.uniform(0, 0.99, 3) * scale,
-                       diffuse=rng.uniform(0.2, 0.99, 3) * scale, specular=rng.uniform(0, 0.5, 3))
+    return [PointLight(eye + rng.normal(scale=0.3, size=3), ambient=rng.uniform(0, 0.99, 3),
+                       diffuse=rng.uniform(0.2, 0.99, 3), specular=rng.uniform(0, 0.5, 3))
             for _ in range(n)]
 
 

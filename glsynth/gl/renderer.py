@@ -50,8 +50,10 @@ class _MeshOnGPU:
         self.texture = None
         if mesh.texture is not None:
             h, w = mesh.texture.shape[:2]
-            self.texture = ctx.texture((w, h), 3, np.ascontiguousarray(mesh.texture).tobytes(),
-                                       alignment=1)
+            # Half floats: llvmpipe filters 8-bit textures with 8-bit weights (up to ~2/255
+            # off the torch path); float textures are filtered in float.
+            self.texture = ctx.texture((w, h), 3, (mesh.texture / np.float32(255)).astype(np.float16).tobytes(),
+                                       dtype="f2", alignment=2)
             self.texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self.texture.repeat_x = self.texture.repeat_y = False  # clamp, like grid_sample 'border'
 

