@@ -20,7 +20,12 @@ _LAZY = {"Renderer": ("glsynth.gl.renderer", "Renderer"),
          "vertex_label_image": ("glsynth.gl.renderer", "vertex_label_image"),
          "diff": ("glsynth.diff", None),
          "assets": ("glsynth.assets", None),
-         "pipeline": ("glsynth.pipeline", None)}
+         "pipeline": ("glsynth.pipeline", None),
+         "load_config": ("glsynth.config", "load_config"),
+         "SelectAndPaste": ("glsynth.pipeline", "SelectAndPaste"),
+         "BlendLesions": ("glsynth.pipeline", "BlendLesions"),
+         "Generate2DViews": ("glsynth.pipeline", "Generate2DViews"),
+         "SynthDataset": ("glsynth.dataset", "SynthDataset")}
 
 
 def __getattr__(name):

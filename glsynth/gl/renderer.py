@@ -145,6 +145,16 @@ class Renderer:
         self._label_tex[id(labels)] = (labels, tex)
         return tex
 
+    def invalidate(self, obj):
+        """Forget the GPU copy of a label array or mesh changed in place since it was
+        rendered (uploads are cached by object identity)."""
+        entry = self._label_tex.pop(id(obj), None)
+        if entry is not None:
+            entry[1].release()
+        entry = self._meshes.pop(id(obj), None)
+        if entry is not None:
+            entry[1].release()
+
     def _fbo(self, kind, w, h):
         key = (kind, w, h)
         fbo = self._fbos.pop(key, None)

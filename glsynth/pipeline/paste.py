@@ -1,0 +1,296 @@
+"""Select & paste (paper section 3.1, appendix A): find suitable places on the skin and
+pull the lesion into the body's texture.
+
+For a lesion, a surface point and a camera distance w are sampled; the scaled, flipped
+and rotated lesion is composed at the centre of the view from that camera; the place
+is accepted when the dilated lesion mask lies on the body, on skin, off earlier lesions,
+and its depth change c = max(|z_skin - w| * a_xd) is at most the threshold. The lesion
+then enters texture space by the inverse mapping: every texel near the surface point
+is projected into the view and takes the lesion pixel it lands on (no holes, correct
+across UV seams), giving T_p (pasted colours), T_m (instance ids) and T_d (the dilated
+lesion with its surrounding skin).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from dataclasses import asdict, dataclass, field
+
+import cv2
+import numpy as np
+
+from ..camera import Camera
+from .seeding import rng_for
+
+log = logging.getLogger(__name__)
+
+
+class PasteError(RuntimeError):
+    """A body cannot take lesions (no skin, every place rejected...)."""
+
+
+@dataclass
+class Placement:
+    instance: int            # id in T_m, 1..k
+    lesion_id: str
+    lesion_meta: dict
+    camera: dict             # Camera.to_dict() of the placement view
+    flip_h: bool
+    flip_v: bool
+    angle_deg: float
+    scale: float             # lesion pixels -> view pixels
+    depth_change: float      # c of appendix A
+    attempts: int
+    view_box: list           # [x0, y0, x1, y1) of the lesion in the placement view
+    texel_box: list          # [x0, y0, x1, y1) of its texels
+    texels: int
+
+
+@dataclass
+class PastedTextures:
+    """T (original), T_p, T_m (uint16 instance ids), T_d, and where each lesion went."""
+
+    original: np.ndarray
+    pasted: np.ndarray
+    instances: np.ndarray
+    dilated: np.ndarray
+    placements: list = field(default_factory=list)
+
+    def save(self, folder):
+        from ..io.images import write_bytes, write_png
+        os.makedirs(folder, exist_ok=True)
+        write_png(os.path.join(folder, "pasted.png"), self.pasted)
+        write_png(os.path.join(folder, "dilated.png"), self.dilated)
+        write_png(os.path.join(folder, "instances.png"), self.instances)
+        write_bytes(os.path.join(folder, "placements.json"),
+                    json.dumps([asdict(p) for p in self.placements], indent=1,
+                               sort_keys=True).encode())
+
+    @classmethod
+    def load(cls, folder, original):
+        from ..io.images import read_image, read_rgb
+        with open(os.path.join(folder, "placements.json")) as fh:
+            placements = [Placement(**p) for p in json.load(fh)]
+        return cls(original, read_rgb(os.path.join(folder, "pasted.png")),
+                   read_image(os.path.join(folder, "instances.png")).astype(np.uint16),
+                   read_rgb(os.path.join(folder, "dilated.png")), placements)
+
+    @staticmethod
+    def exists(folder):
+        return os.path.isfile(os.path.join(folder, "placements.json"))
+
+
+@dataclass
+class PasteSettings:
+    view_size: int = 512
+    fov_deg: float = 30.0
+    w: tuple = (0.4, 0.6)
+    max_depth_change: float = 0.02
+    dilation: int = 9
+    attempts: int = 60
+    size: tuple = (0.15, 0.4)      # lesion mask extent / view width
+
+
+def compose_lesion(lesion, view_size, extent_px, flip_h, flip_v, angle_deg):
+    """Affine (2x3) from lesion pixels to view pixels placing the mask's box centre at
+    the view centre with its longer side ``extent_px`` long, plus the composed view
+    image a_x (float RGB) and mask a_s (float)."""
+    ys, xs = np.nonzero(lesion.mask)
+    cy, cx = (ys.min() + ys.max()) / 2, (xs.min() + xs.max()) / 2
+    extent = max(ys.max() - ys.min() + 1, xs.max() - xs.min() + 1)
+    scale = extent_px / extent
+    a = cv2.getRotationMatrix2D((float(cx), float(cy)), float(angle_deg), float(scale))
+    flip = np.diag([-1.0 if flip_h else 1.0, -1.0 if flip_v else 1.0])
+    a[:, :2] = flip @ a[:, :2]
+    a[:, 2] = (view_size - 1) / 2 - a[:, :2] @ np.array([cx, cy])
+    return a, scale
+
+
+def warp_lesion(lesion, affine, view_size):
+    img = cv2.warpAffine(lesion.image.astype(np.float32) / 255, affine, (view_size, view_size),
+                         flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    mask = cv2.warpAffine(lesion.mask.astype(np.float32), affine, (view_size, view_size),
+                          flags=cv2.INTER_LINEAR, borderValue=0)
+    return img, mask
+
+
+def depth_change(out, nonskin_view, instances_view, region, w):
+    """c of appendix A over ``region`` (bool): off-body, non-skin and already-used pixels
+    count as depth -1, so they reject the place as the paper's z_skin does."""
+    depth = out["depth"]
+    usable = (out["face_id"] >= 0) & (nonskin_view == 0) & (instances_view == 0)
+    z_skin = np.where(usable, depth, -1.0)
+    return float(np.abs(z_skin[region] - w).max()) if region.any() else math.inf
+
+
+class Paster:
+    """Places lesions on one body. ``renderer`` must be ``view_size`` square."""
+
+    def __init__(self, renderer, body, texels, settings: PasteSettings):
+        self.r, self.body, self.tx, self.s = renderer, body, texels, settings
+        mesh = body.mesh
+        # sample only faces that are (mostly) skin at their centre texel
+        h, w = body.nonskin.shape
+        uv = mesh.uvs[mesh.face_uvs].mean(1)
+        col = np.clip((uv[:, 0] * w).astype(int), 0, w - 1)
+        row = np.clip(((1 - uv[:, 1]) * h).astype(int), 0, h - 1)
+        skin_face = (body.nonskin[row, col] == 0) & ~mesh.degenerate_faces
+        area = mesh.face_areas * skin_face
+        if area.sum() <= 0:
+            raise PasteError(f"{mesh.name}: no skin on this body (the non-skin mask covers "
+                             "every face), so no lesion can be placed")
+        self.face_p = area / area.sum()
+        self.nonskin = body.nonskin.astype(np.uint16)
+        self.T = mesh.texture
+        self.result = PastedTextures(self.T, self.T.copy(), np.zeros(self.T.shape[:2], np.uint16),
+                                     self.T.copy())
+
+    def place(self, lesion, rng) -> Placement | None:
+        """Try up to ``attempts`` places; paste and return the placement, or None."""
+        s, mesh = self.s, self.body.mesh
+        k = len(self.result.placements) + 1
+        reasons = {}
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * s.dilation + 1,) * 2)
+        for attempt in range(1, s.attempts + 1):
+            f = rng.choice(len(self.face_p), p=self.face_p)
+            bary = rng.dirichlet((1.0, 1.0, 1.0))
+            corners = mesh.faces[f]
+            point = bary @ mesh.vertices[corners]
+            normal = bary @ mesh.vertex_normals[corners]
+            if np.linalg.norm(normal) < 1e-9:
+                normal = mesh.face_normals[f]
+            w = rng.uniform(*s.w)
+            cam = Camera.from_surface(point, normal, w, fov_deg=s.fov_deg,
+                                      width=s.view_size, height=s.view_size)
+            flip_h, flip_v = bool(rng.random() < 0.5), bool(rng.random() < 0.5)
+            angle = float(rng.uniform(0, 360))
+            extent = rng.uniform(*s.size) * s.view_size
+            affine, scale = compose_lesion(lesion, s.view_size, extent, flip_h, flip_v, angle)
+            a_x, a_s = warp_lesion(lesion, affine, s.view_size)
+            mask = a_s > 0.5
+            if mask.sum() < 3:
+                reasons["lesion too small"] = reasons.get("lesion too small", 0) + 1
+                continue
+            dilated = cv2.dilate(mask.astype(np.uint8), kernel) > 0
+            out = self.r.render(mesh, cam, passes=("gbuffer", "labels"),
+                                label_textures={"nonskin": self.nonskin,
+                                                "instances": self.result.instances})
+            c = depth_change(out, out["nonskin"], out["instances"], dilated, w)
+            if dilated[0].any() or dilated[-1].any() or dilated[:, 0].any() or dilated[:, -1].any():
+                c = math.inf  # lesion does not fit in the view: its edge would be unchecked
+            if c > s.max_depth_change:
+                key = "off body / non-skin / overlap / depth change"
+                reasons[key] = reasons.get(key, 0) + 1
+                continue
+            n = self._paste(cam, out, affine, lesion, mask, dilated, k)
+            if n == 0:
+                reasons["no texel visible"] = reasons.get("no texel visible", 0) + 1
+                continue
+            rows, cols = np.nonzero(mask)
+            t_rows, t_cols = np.nonzero(self.result.instances == k)
+            p = Placement(k, lesion.id, _jsonable(lesion.meta), cam.to_dict(), flip_h, flip_v, angle,
+                          float(scale), float(c), attempt,
+                          [int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1],
+                          [int(t_cols.min()), int(t_rows.min()), int(t_cols.max()) + 1, int(t_rows.max()) + 1],
+                          int(n))
+            self.result.placements.append(p)
+            return p
+        log.warning("%s: lesion %s not placed after %d attempts (%s)", mesh.name, lesion.id,
+                    s.attempts, ", ".join(f"{v}x {k_}" for k_, v in reasons.items()))
+        return None
+
+    def _paste(self, cam, out, affine, lesion, mask, dilated, k) -> int:
+        """Pull lesion pixels into texels seen by this view; returns texels written."""
+        tx, res = self.tx, self.result
+        eye = np.asarray(cam.eye)
+        target = np.asarray(cam.target)
+        w = float(np.linalg.norm(target - eye))
+        radius = (w + self.s.max_depth_change) * math.tan(math.radians(cam.fov_deg) / 2) * 1.5 + 1e-3
+        near = np.nonzero(np.sum((tx.points - target) ** 2, axis=1) < radius ** 2)[0]
+        if len(near) == 0:
+            return 0
+        pts = tx.points[near]
+        px = cam.project(pts)
+        size = cam.width
+        inside = (px[:, 0] >= 0) & (px[:, 0] < size) & (px[:, 1] >= 0) & (px[:, 1] < size)
+        ix = np.clip(px[:, 0].astype(int), 0, size - 1)
+        iy = np.clip(px[:, 1].astype(int), 0, size - 1)
+        forward = (target - eye) / w
+        z = (pts - eye) @ forward
+        rendered = out["depth"][iy, ix]
+        facing = ((eye - pts) * tx.normals[near]).sum(1) > 0
+        visible = inside & facing & (np.abs(z - rendered) <= 0.01 * w + 1e-4)
+        # bilinear mask values at the projected points (pixel centres at +0.5)
+        m_val = sample_bilinear(mask.astype(np.float32), px[:, 0] - 0.5, px[:, 1] - 0.5)
+        d_val = sample_bilinear(dilated.astype(np.float32), px[:, 0] - 0.5, px[:, 1] - 0.5)
+        in_lesion = visible & (m_val > 0.5)
+        in_dilated = visible & (d_val > 0.5)
+        if not in_lesion.any():
+            return 0
+        # lesion colours straight from the source image through the inverse affine
+        inv = cv2.invertAffineTransform(affine)
+        src = np.c_[px - 0.5, np.ones(len(px))] @ inv.T
+        colours = sample_bilinear(lesion.image, src[:, 0], src[:, 1], cv2.BORDER_REPLICATE)
+        r, c = tx.rows[near], tx.cols[near]
+        res.pasted[r[in_lesion], c[in_lesion]] = colours[in_lesion]
+        res.instances[r[in_lesion], c[in_lesion]] = k
+        res.dilated[r[in_dilated], c[in_dilated]] = colours[in_dilated]
+        _spill_into_gutters(res, tx.covered, k)
+        self.r.invalidate(res.instances)  # changed in place: re-upload before the next check
+        return int(in_lesion.sum())
+
+
+def sample_bilinear(img, x, y, border=cv2.BORDER_CONSTANT):
+    """img sampled at float pixel indices (x = column); one value per point.
+    cv2.remap needs maps under 32767 wide, hence the reshape into rows of 1024."""
+    n = len(x)
+    cols = 1024
+    pad = (-n) % cols
+    mx = np.pad(np.asarray(x, np.float32), (0, pad)).reshape(-1, cols)
+    my = np.pad(np.asarray(y, np.float32), (0, pad)).reshape(-1, cols)
+    out = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=border, borderValue=0)
+    return out.reshape((-1,) + img.shape[2:])[:n]
+
+
+def _spill_into_gutters(res: PastedTextures, covered, k, rings=2):
+    """Copy lesion texels a few texels into uncovered gutter texels next to them, so
+    bilinear sampling at UV island borders does not mix in the old skin colour."""
+    region = res.instances == k
+    rows, cols = np.nonzero(region)
+    y0, y1 = max(rows.min() - rings - 1, 0), rows.max() + rings + 2
+    x0, x1 = max(cols.min() - rings - 1, 0), cols.max() + rings + 2
+    reg = region[y0:y1, x0:x1].copy()
+    cov = covered[y0:y1, x0:x1]
+    box = np.ones((3, 3), np.float32)
+    for _ in range(rings):
+        ring = (cv2.dilate(reg.astype(np.uint8), box.astype(np.uint8)) > 0) & ~reg & ~cov
+        if not ring.any():
+            break
+        weight = cv2.filter2D(reg.astype(np.float32), -1, box, borderType=cv2.BORDER_CONSTANT)
+        for tex in (res.pasted, res.dilated):
+            sub = tex[y0:y1, x0:x1]
+            acc = cv2.filter2D(sub.astype(np.float32) * reg[..., None], -1, box,
+                               borderType=cv2.BORDER_CONSTANT)
+            fill = acc[ring] / weight[ring][:, None]
+            sub[ring] = np.clip(np.round(fill), 0, 255).astype(np.uint8)
+        res.instances[y0:y1, x0:x1][ring] = k
+        reg |= ring
+
+
+def _jsonable(meta):
+    return json.loads(json.dumps(meta, default=str))
+
+
+def paste_lesions(renderer, body, texels, lesions, settings: PasteSettings, seed_keys, seed):
+    """Place ``lesions`` (a list) on ``body``; returns PastedTextures."""
+    paster = Paster(renderer, body, texels, settings)
+    for i, lesion in enumerate(lesions):
+        paster.place(lesion, rng_for(seed, "paste", *seed_keys, i))
+    if lesions and not paster.result.placements:
+        raise PasteError(f"{body.mesh.name}: none of {len(lesions)} lesions found a valid place "
+                         f"in {settings.attempts} attempts each (too little flat skin for lesions "
+                         f"of {settings.size} of the view; lower lesions.size or raise "
+                         "paste.max_depth_change)")
+    return paster.result

@@ -1,0 +1,307 @@
+"""The three stages of the paper's listing, each usable alone, resumable and seeded:
+
+    cfg = gs.load_config("configs/default.yaml")
+    SelectAndPaste(cfg, out).paste_on_locations()
+    BlendLesions(cfg, out).blend_lesions()
+    Generate2DViews(cfg, out).synthesize_views()
+
+Per body, ``OUT/bodies/<id>/`` keeps the pasted textures (T_p, T_m, T_d and the
+placements) and the blended texture T_b, which view generation reuses.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from .. import __version__
+from ..config import Config
+from ..io.images import read_rgb, write_png, write_text
+from . import views as V
+from .bodies import TexelGeometry, body_ids, load_body
+from .paste import PasteError, PasteSettings, PastedTextures, paste_lesions
+from .seeding import rng_for, torch_seed
+from .writer import finalize, sample_done, write_sample
+
+log = logging.getLogger(__name__)
+
+
+class _Stage:
+    def __init__(self, config: Config, out, renderer=None, body_subset=None):
+        self.cfg, self.out = config, os.fspath(out)
+        self._renderer = renderer
+        self.body_ids = body_subset if body_subset is not None else body_ids(config)
+        self.timings = {}
+
+    @property
+    def renderer(self):
+        if self._renderer is None:
+            from ..gl.renderer import Renderer
+            size = max(self.cfg.paste.view_size, self.cfg.views.size)
+            self._renderer = Renderer(size, size)
+        return self._renderer
+
+    def body_dir(self, body_id):
+        return os.path.join(self.out, "bodies", body_id)
+
+    def _time(self, name, seconds):
+        self.timings[name] = self.timings.get(name, 0.0) + seconds
+
+
+def lesion_source(cfg: Config):
+    from .. import assets
+    le = cfg.lesions
+    if le.source == "procedural":
+        n = max(le.per_body * cfg.bodies.count, 1)
+        return assets.procedural_lesions(n, seed=cfg.seed)
+    return assets.load_lesions(le.source, layout=le.layout, colour_constancy=le.colour_constancy)
+
+
+def background_source(cfg: Config):
+    from .. import assets
+    b = cfg.backgrounds
+    if b.source == "procedural":
+        return assets.procedural_backgrounds(b.count, seed=cfg.seed, size=cfg.views.size)
+    return assets.load_backgrounds(b.source)
+
+
+class SelectAndPaste(_Stage):
+    """Place ``lesions.per_body`` lesions on every body (skipping bodies done before)."""
+
+    def paste_on_locations(self):
+        cfg = self.cfg
+        if cfg.lesions.per_body == 0:
+            log.info("lesions.per_body is 0: nothing to paste")
+            return
+        lesions = None
+        p = cfg.paste
+        settings = PasteSettings(p.view_size, p.fov_deg, tuple(p.w), p.max_depth_change,
+                                 p.dilation, p.attempts, tuple(cfg.lesions.size))
+        for body_id in tqdm(self.body_ids, desc="paste", unit="body"):
+            folder = self.body_dir(body_id)
+            if PastedTextures.exists(folder):
+                continue
+            lesions = lesions if lesions is not None else lesion_source(cfg)
+            if len(lesions) == 0:
+                raise PasteError(f"lesions.source {cfg.lesions.source!r}: no usable lesions")
+            t0 = time.perf_counter()
+            body = load_body(cfg, body_id)
+            self._time("load_body", time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            rng = rng_for(cfg.seed, "lesion-choice", body_id)
+            chosen = [lesions[int(i)] for i in rng.choice(len(lesions), cfg.lesions.per_body,
+                                                             replace=len(lesions) < cfg.lesions.per_body)]
+            renderer = self._paste_renderer()
+            texels = TexelGeometry.of(renderer, body.mesh)
+            result = paste_lesions(renderer, body, texels, chosen, settings, (body_id,), cfg.seed)
+            result.save(folder)
+            self._time("paste", time.perf_counter() - t0)
+            log.info("%s: %d of %d lesions placed", body_id, len(result.placements), len(chosen))
+
+    def _paste_renderer(self):
+        from ..gl.renderer import Renderer
+        s = self.cfg.paste.view_size
+        if self.renderer.width == s:
+            return self.renderer
+        return Renderer(s, s, ctx=self.renderer.ctx)
+
+
+class BlendLesions(_Stage):
+    """Blend every pasted body's lesions (method from the config); writes blended.png."""
+
+    def blend_lesions(self):
+        from .blend import BlendSettings, DeepBlender, poisson_blend
+        cfg, b = self.cfg, self.cfg.blend
+        settings = BlendSettings(b.method, b.steps, b.lr, b.optimizer, b.content, b.style, b.gradient,
+                                 b.tv, b.pad, b.perturb_deg, b.perturb_w)
+        extractor, self.feature_description = None, "none"
+        for body_id in tqdm(self.body_ids, desc=f"blend ({b.method})", unit="body"):
+            folder = self.body_dir(body_id)
+            if not PastedTextures.exists(folder) or os.path.isfile(os.path.join(folder, "blended.png")):
+                continue
+            body = load_body(cfg, body_id)
+            pasted = PastedTextures.load(folder, body.mesh.texture)
+            t0 = time.perf_counter()
+            record = {"method": b.method, "lesions": {}}
+            renderer = SelectAndPaste._paste_renderer(self)
+            if b.method == "paste" or not pasted.placements:
+                blended = pasted.pasted
+            elif b.method == "poisson":
+                blended = poisson_blend(renderer, body.mesh, pasted, TexelGeometry.of(renderer, body.mesh),
+                                        settings)
+            else:
+                if settings.needs_features and extractor is None:
+                    from .features import make_extractor
+                    extractor, self.feature_description = make_extractor(b.features, b.vgg_weights)
+                blender = DeepBlender(renderer, body.mesh, pasted, settings, extractor)
+                for p in tqdm(pasted.placements, desc=f"{body_id} lesions", unit="lesion", leave=False):
+                    losses = blender.blend(p, rng_for(cfg.seed, "blend", body_id, p.instance),
+                                           torch_seed(cfg.seed, "blend", body_id, p.instance))
+                    record["lesions"][p.instance] = {
+                        "seconds": round(blender.history[p.instance]["seconds"], 3),
+                        "first": losses[0] if losses else None, "last": losses[-1] if losses else None}
+                blended = blender.result()
+                record["features"] = self.feature_description
+            write_png(os.path.join(folder, "blended.png"), blended)
+            record["seconds"] = time.perf_counter() - t0
+            write_text(os.path.join(folder, "blend.json"), json.dumps(record, indent=1, sort_keys=True))
+            self._time("blend", record["seconds"])
+
+
+class Generate2DViews(_Stage):
+    """Render ``views.per_body`` annotated views per body and write the dataset."""
+
+    def synthesize_views(self):
+        cfg, v = self.cfg, self.cfg.views
+        backgrounds = None
+        total = len(self.body_ids) * v.per_body
+        bar = tqdm(total=total, desc="views", unit="img")
+        rejected = {}
+        for body_id in self.body_ids:
+            todo = [j for j in range(v.per_body) if not sample_done(self.out, f"{body_id}_{j:04d}")]
+            bar.update(v.per_body - len(todo))
+            if not todo:
+                continue
+            backgrounds = backgrounds if backgrounds is not None else background_source(cfg)
+            t0 = time.perf_counter()
+            body = load_body(cfg, body_id)
+            textured, instances, placements = self._textures(body_id, body)
+            mesh_b = body.mesh.copy_with(texture=textured)
+            renderer = self.renderer if self.renderer.width == v.size else self._view_renderer()
+            lesion_points = self._lesion_points(renderer, body, instances, placements)
+            nevi_map = V.nevi_label_map(body)
+            self._time("load_body", time.perf_counter() - t0)
+            for j in todo:
+                t0 = time.perf_counter()
+                self._one_view(renderer, body_id, body, mesh_b, instances, nevi_map, placements,
+                               lesion_points, backgrounds, j, rejected)
+                self._time("views", time.perf_counter() - t0)
+                bar.update(1)
+        bar.close()
+        if rejected:
+            log.info("rejected views: %s", ", ".join(f"{n}x {r}" for r, n in sorted(rejected.items())))
+        return rejected
+
+    def _view_renderer(self):
+        from ..gl.renderer import Renderer
+        return Renderer(self.cfg.views.size, self.cfg.views.size, ctx=self.renderer.ctx)
+
+    def _textures(self, body_id, body):
+        folder = self.body_dir(body_id)
+        h, w = body.mesh.texture.shape[:2]
+        if self.cfg.lesions.per_body == 0 or not PastedTextures.exists(folder):
+            return body.mesh.texture, np.zeros((h, w), np.uint16), []
+        pasted = PastedTextures.load(folder, body.mesh.texture)
+        blended_path = os.path.join(folder, "blended.png")
+        texture = read_rgb(blended_path) if os.path.isfile(blended_path) else pasted.pasted
+        return texture, pasted.instances, pasted.placements
+
+    def _lesion_points(self, renderer, body, instances, placements):
+        if not placements:
+            return []
+        tx = TexelGeometry.of(renderer, body.mesh)
+        ids = instances[tx.rows, tx.cols]
+        return [(tx.points[ids == p.instance], tx.normals[ids == p.instance])
+                for p in placements if (ids == p.instance).any()]
+
+    def _one_view(self, renderer, body_id, body, mesh_b, instances, nevi_map, placements,
+                  lesion_points, backgrounds, j, rejected):
+        cfg, v = self.cfg, self.cfg.views
+        sid = f"{body_id}_{j:04d}"
+        rng = rng_for(cfg.seed, "view", body_id, j)
+        for attempt in range(1, v.attempts + 1):
+            try:
+                scene = V.sample_scene(body, lesion_points, rng, v, renderer)
+                layers = V.render_view(renderer, body, mesh_b, instances, nevi_map, scene, v,
+                                       cfg.outputs)
+                break
+            except V.ViewRejected as exc:
+                reason = str(exc).split(" ")[0] if "<" in str(exc) else str(exc)
+                rejected[reason] = rejected.get(reason, 0) + 1
+        else:
+            log.warning("%s: no acceptable view in %d attempts; skipped", sid, v.attempts)
+            return
+        bg_index = int(rng.integers(len(backgrounds)))
+        blur = float(rng.uniform(*cfg.backgrounds.blur))
+        if "rgb" in cfg.outputs:
+            background = backgrounds.get(bg_index, v.size, v.size)
+            layers["image"] = V.composite(layers["rgb"], layers["alpha"], background, blur)
+        by_instance = {p.instance: p for p in placements}
+        lesions = []
+        for k, box in layers["boxes"].items():
+            p = by_instance.get(k)
+            lesions.append({"instance": k, "box": box, "area": int((layers["instances"] == k).sum()),
+                            "lesion_id": p.lesion_id if p else None,
+                            "source": p.lesion_meta if p else None})
+        n = layers["semantic"].size
+        meta = {"id": sid, "width": v.size, "height": v.size, "attempts": attempt,
+                "camera": {**scene.camera.to_dict(), "centre": scene.centre,
+                           "intrinsics": scene.camera.intrinsics().tolist(),
+                           "view_matrix": scene.camera.view_matrix().tolist()},
+                "light": scene.light.to_dict(), "material": scene.material.to_dict(),
+                "body": {"id": body_id, **_jsonable(body.meta)},
+                "lesions": lesions,
+                "nevi": [{"id": k, "box": b} for k, b in layers.get("nevi_boxes", {}).items()],
+                "background": {"index": bg_index, "source": cfg.backgrounds.source, "blur": blur},
+                "fractions": {name: float((layers["semantic"] == code).sum() / n) for name, code in
+                              (("skin", V.SEMANTIC_SKIN), ("lesion", V.SEMANTIC_LESION),
+                               ("nonskin", V.SEMANTIC_NONSKIN))},
+                "box_convention": "[x0, y0, x1, y1] pixels, x1/y1 exclusive"}
+        write_sample(self.out, sid, layers, meta, cfg.outputs)
+
+
+def _jsonable(obj):
+    return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+
+def generate(cfg: Config, out, resume=False):
+    """The whole pipeline into ``out``; returns the manifest."""
+    out = os.fspath(out)
+    if os.path.isdir(out) and os.listdir(out) and not resume:
+        manifest_path = os.path.join(out, "manifest.json")
+        if os.path.isfile(manifest_path) or os.path.isdir(os.path.join(out, "targets")):
+            raise FileExistsError(f"{out}: output folder is not empty; pass --resume to continue "
+                                  "the run there, or choose another folder")
+    os.makedirs(out, exist_ok=True)
+    t_start = time.perf_counter()
+    stage_args = dict(config=cfg, out=out)
+    paste = SelectAndPaste(**stage_args)
+    timings = {}
+    if cfg.lesions.per_body > 0:
+        paste.paste_on_locations()
+        blend = BlendLesions(**stage_args, renderer=paste._renderer)
+        blend.blend_lesions()
+        timings.update(paste.timings)
+        timings.update({k: timings.get(k, 0) + t for k, t in blend.timings.items()})
+        renderer = blend._renderer
+        features = getattr(blend, "feature_description", "none")
+    else:
+        renderer, features = None, "none (no lesions)"
+    views = Generate2DViews(**stage_args, renderer=renderer)
+    rejected = views.synthesize_views()
+    for k, t in views.timings.items():
+        timings[k] = timings.get(k, 0) + t
+    timings["total"] = time.perf_counter() - t_start
+    manifest = {"glsynth_version": __version__, "seed": cfg.seed, "config": cfg.to_dict(),
+                "gl_renderer": views.renderer.info.get("GL_RENDERER"),
+                "gl_version": views.renderer.info.get("GL_VERSION"),
+                "versions": _versions(), "blend_features": features,
+                "timings_seconds": {k: round(t, 3) for k, t in timings.items()},
+                "rejected_views": rejected}
+    finalize(out, manifest)
+    return manifest
+
+
+def _versions():
+    import importlib.metadata as md
+    out = {}
+    for pkg in ("numpy", "torch", "moderngl", "anny", "opencv-contrib-python-headless"):
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            pass
+    return out

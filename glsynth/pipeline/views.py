@@ -1,0 +1,148 @@
+"""Generate annotated 2D views of a blended body (paper section 3.3).
+
+Cameras sit on random surface points (optionally lesions) at w in the configured range;
+lights and material are sampled in the paper's ranges; cameras inside the mesh and
+lights the mesh blocks are rejected by looking down the ray with the renderer itself;
+views with too little skin (or lesion) are rejected. Each accepted view yields the
+layers below; ``render_view`` renders only the passes the requested outputs need.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..camera import Camera
+from ..gl.renderer import vertex_label_image
+from ..lighting import Material, PointLight
+
+SEMANTIC_BACKGROUND, SEMANTIC_SKIN, SEMANTIC_LESION, SEMANTIC_NONSKIN = 0, 1, 2, 3
+
+
+@dataclass
+class ViewScene:
+    camera: Camera
+    light: PointLight
+    material: Material
+    centre: str              # 'lesion k' or 'surface'
+
+
+class ViewRejected(Exception):
+    pass
+
+
+def sample_scene(body, lesion_points, rng, v, renderer) -> ViewScene:
+    """One camera + light + material; raises ViewRejected when the camera is inside
+    the mesh or the light is blocked."""
+    mesh = body.mesh
+    if lesion_points and rng.random() < v.lesion_bias:
+        k = int(rng.integers(len(lesion_points)))
+        pts, nrms = lesion_points[k]
+        i = int(rng.integers(len(pts)))
+        point, normal, centre = pts[i], nrms[i], f"lesion {k + 1}"
+    else:
+        p = mesh.face_areas / mesh.face_areas.sum()
+        f = rng.choice(len(p), p=p)
+        bary = rng.dirichlet((1.0, 1.0, 1.0))
+        point = bary @ mesh.vertices[mesh.faces[f]]
+        normal = bary @ mesh.vertex_normals[mesh.faces[f]]
+        centre = "surface"
+    if np.linalg.norm(normal) < 1e-9:
+        raise ViewRejected("zero normal")
+    w = rng.uniform(*v.w)
+    cam = Camera.from_surface(point, normal, w, fov_deg=v.fov_deg, width=v.size, height=v.size)
+    if not _sees_point(renderer, mesh, cam, point):
+        raise ViewRejected("camera inside the mesh or the point is hidden")
+    # light near the camera, in a random direction, unblocked on its way to the point
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    light_pos = np.asarray(cam.eye) + direction * rng.uniform(*v.light_offset)
+    if np.linalg.norm(light_pos - point) < 1e-6 or not _sees_point(
+            renderer, mesh, Camera.look_at(light_pos, point, fov_deg=5.0, width=16, height=16), point):
+        raise ViewRejected("light blocked by the body")
+    # One intensity per term for R, G and B alike: independent channels would tint the
+    # skin green or purple, which no clinical photo shows.
+    light = PointLight(light_pos, ambient=rng.uniform(*v.ambient), diffuse=rng.uniform(*v.diffuse),
+                       specular=rng.uniform(*v.specular))
+    material = Material(specular=rng.uniform(*v.material_specular), shininess=rng.uniform(*v.shininess))
+    return ViewScene(cam, light, material, centre)
+
+
+def _sees_point(renderer, mesh, cam, point) -> bool:
+    """True when the first surface along the camera's central ray is ``point``."""
+    crop = cam.crop(cam.width // 2 - 1, cam.height // 2 - 1, 2, 2)
+    out = renderer.render(mesh, crop, passes=("gbuffer",))
+    dist = float(np.linalg.norm(np.asarray(cam.eye) - point))
+    d = out["depth"]
+    return bool(((d > 0) & (np.abs(d - dist) <= 0.02 * dist + 1e-4)).any())
+
+
+def passes_for(outputs) -> tuple:
+    """The passes a view needs: the G-buffer and label pass always (they decide
+    acceptance and give depth, anatomy and masks), shading only when RGB is asked for."""
+    return ("gbuffer", "rgb", "labels") if "rgb" in outputs else ("gbuffer", "labels")
+
+
+def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v, outputs):
+    """Render one view; returns the layers dict (numpy) or raises ViewRejected."""
+    labels = {"instances": instances, "nonskin": body.nonskin}
+    if nevi_map is not None:
+        labels["nevi"] = nevi_map
+    out = renderer.render(mesh_b, scene.camera, passes=passes_for(outputs), lights=[scene.light],
+                          material=scene.material, label_textures=labels,
+                          supersample=v.supersample)
+    body_px = out["face_id"] >= 0
+    lesion = body_px & (out["instances"] > 0)
+    nonskin = body_px & (out["nonskin"] > 0) & ~lesion
+    skin = body_px & ~lesion & ~nonskin
+    n = body_px.size
+    if skin.sum() / n < v.min_skin:
+        raise ViewRejected(f"skin {skin.sum() / n:.3f} < views.min_skin {v.min_skin}")
+    if lesion.sum() / n < v.min_lesion:
+        raise ViewRejected(f"lesion {lesion.sum() / n:.3f} < views.min_lesion {v.min_lesion}")
+    semantic = np.zeros(body_px.shape, np.uint8)
+    semantic[skin], semantic[lesion], semantic[nonskin] = SEMANTIC_SKIN, SEMANTIC_LESION, SEMANTIC_NONSKIN
+    inst = np.where(lesion, out["instances"], 0).astype(np.uint16)
+    layers = {"semantic": semantic, "instances": inst, "depth": out["depth"].astype(np.float32),
+              "boxes": instance_boxes(inst)}
+    if "rgb" in out:
+        layers["rgb"], layers["alpha"] = out["rgb"], out["alpha"]
+    if body.anatomy is not None and "anatomy" in outputs:
+        layers["anatomy"] = vertex_label_image(out, body.mesh, body.anatomy).astype(np.uint8)
+    if nevi_map is not None:
+        layers["nevi_boxes"] = instance_boxes(np.where(body_px & ~lesion, out["nevi"], 0))
+    return layers
+
+
+def instance_boxes(inst) -> dict:
+    """{id: [x0, y0, x1, y1]} minimal enclosing boxes; x1/y1 exclusive (pixels)."""
+    boxes = {}
+    for k in np.unique(inst):
+        if k == 0:
+            continue
+        ys, xs = np.nonzero(inst == k)
+        boxes[int(k)] = [int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1]
+    return boxes
+
+
+def nevi_label_map(body):
+    """uint16 texture with nevus i+1 painted in its box (None without nevi)."""
+    if not body.nevi:
+        return None
+    h, w = body.nonskin.shape
+    m = np.zeros((h, w), np.uint16)
+    for i, (x0, y0, x1, y1) in enumerate(body.nevi):
+        m[max(y0, 0):min(y1, h), max(x0, 0):min(x1, w)] = i + 1
+    return m
+
+
+def composite(rgb, alpha, background, blur_radius):
+    """Body over the background (blurred with a Gaussian of the given radius)."""
+    bg = background.astype(np.float32) / 255
+    if blur_radius > 0:
+        sigma = max(blur_radius, 1e-3)
+        bg = cv2.GaussianBlur(bg, (0, 0), sigmaX=sigma)
+    img = rgb * alpha[..., None] + bg * (1 - alpha[..., None])
+    return np.clip(np.round(img * 255), 0, 255).astype(np.uint8)

@@ -1,0 +1,108 @@
+"""Writing a dataset: one atomic file per layer, the per-image JSON last (a sample is
+complete exactly when its JSON exists, which is what --resume looks for), then COCO,
+params.csv and the manifest gathered from the JSONs."""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+
+import numpy as np
+
+from ..io.images import write_bytes, write_png, write_text
+
+
+def sample_done(out_dir, sample_id) -> bool:
+    return os.path.isfile(os.path.join(out_dir, "targets", f"{sample_id}.json"))
+
+
+def write_sample(out_dir, sample_id, layers: dict, meta: dict, outputs):
+    tgt = os.path.join(out_dir, "targets")
+    if "rgb" in outputs:
+        write_png(os.path.join(out_dir, "images", f"{sample_id}.png"), layers["image"])
+    if "semantic" in outputs:
+        write_png(os.path.join(tgt, f"{sample_id}_semantic.png"), layers["semantic"])
+    if "instances" in outputs:
+        write_png(os.path.join(tgt, f"{sample_id}_instances.png"), layers["instances"])
+    if "anatomy" in outputs and "anatomy" in layers:
+        write_png(os.path.join(tgt, f"{sample_id}_anatomy.png"), layers["anatomy"])
+    if "depth" in outputs:
+        write_depth(os.path.join(tgt, f"{sample_id}_depth.tiff"), layers["depth"])
+    write_text(os.path.join(tgt, f"{sample_id}.json"), json.dumps(meta, indent=1, sort_keys=True))
+
+
+def write_depth(path, depth):
+    import tifffile
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, depth.astype(np.float32), compression="zlib", metadata=None)
+    write_bytes(path, buf.getvalue())
+
+
+def rle_encode(mask: np.ndarray) -> dict:
+    """COCO uncompressed RLE: run lengths over the column-major pixels, starting with
+    a run of zeros (possibly empty)."""
+    flat = np.asarray(mask, bool).ravel(order="F").astype(np.int8)
+    changes = np.flatnonzero(flat[1:] != flat[:-1]) + 1
+    counts = np.diff(np.r_[0, changes, flat.size]).tolist()
+    if flat.size and flat[0]:
+        counts = [0] + counts
+    return {"size": [int(mask.shape[0]), int(mask.shape[1])], "counts": [int(c) for c in counts]}
+
+
+def read_json(path):
+    with open(path) as fh:
+        return json.load(fh)
+
+
+def finalize(out_dir, manifest: dict):
+    """COCO annotations, params.csv and manifest.json from every complete sample."""
+    from ..io.images import read_image
+    tgt = os.path.join(out_dir, "targets")
+    ids = sorted(f[:-5] for f in os.listdir(tgt) if f.endswith(".json")) if os.path.isdir(tgt) else []
+    coco = {"info": {"description": "glsynth synthetic dermatology images",
+                     "version": manifest.get("glsynth_version")},
+            "categories": [{"id": 1, "name": "lesion", "supercategory": "skin condition"}],
+            "images": [], "annotations": []}
+    rows = []
+    ann_id = 1
+    for img_id, sid in enumerate(ids, 1):
+        meta = read_json(os.path.join(tgt, f"{sid}.json"))
+        h, w = meta["height"], meta["width"]
+        coco["images"].append({"id": img_id, "file_name": f"images/{sid}.png", "width": w,
+                               "height": h, "glsynth_id": sid})
+        inst_path = os.path.join(tgt, f"{sid}_instances.png")
+        inst = read_image(inst_path) if os.path.isfile(inst_path) else None
+        for lesion in meta["lesions"]:
+            x0, y0, x1, y1 = lesion["box"]
+            ann = {"id": ann_id, "image_id": img_id, "category_id": 1, "iscrowd": 0,
+                   "bbox": [x0, y0, x1 - x0, y1 - y0], "area": int(lesion["area"]),
+                   "glsynth_instance": lesion["instance"]}
+            if inst is not None:
+                ann["segmentation"] = rle_encode(inst == lesion["instance"])
+            coco["annotations"].append(ann)
+            ann_id += 1
+        rows.append(_param_row(sid, meta))
+    write_text(os.path.join(out_dir, "annotations.coco.json"), json.dumps(coco))
+    if rows:
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        write_text(os.path.join(out_dir, "params.csv"), buf.getvalue())
+    manifest["counts"] = {"images": len(ids), "lesion_annotations": ann_id - 1}
+    write_text(os.path.join(out_dir, "manifest.json"), json.dumps(manifest, indent=1, sort_keys=True))
+
+
+def _param_row(sid, meta) -> dict:
+    cam, light, mat = meta["camera"], meta["light"], meta["material"]
+    return {"id": sid, "body": meta["body"]["id"], "w": cam.get("w"), "fov_deg": cam["fov_deg"],
+            "eye_x": cam["eye"][0], "eye_y": cam["eye"][1], "eye_z": cam["eye"][2],
+            "light_x": light["position"][0], "light_y": light["position"][1],
+            "light_z": light["position"][2],
+            "ambient": float(np.mean(light["ambient"])), "diffuse": float(np.mean(light["diffuse"])),
+            "specular": float(np.mean(light["specular"])),
+            "material_specular": float(np.mean(mat["specular"])), "shininess": mat["shininess"],
+            "background": meta["background"]["index"], "blur": meta["background"]["blur"],
+            "skin_fraction": meta["fractions"]["skin"], "lesion_fraction": meta["fractions"]["lesion"],
+            "lesions": len(meta["lesions"])}
