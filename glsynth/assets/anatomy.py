@@ -87,12 +87,16 @@ def part_scores(bone_labels, weights, indices) -> np.ndarray:
     return score
 
 
-def anatomy_labels(bone_labels, weights, indices, faces, smooth: int = 3) -> np.ndarray:
+def anatomy_labels(bone_labels, weights, indices, faces, vertices=None,
+                   smooth: int = 12) -> np.ndarray:
     """Per-vertex labels 1..16 (uint8) from sparse skinning weights.
 
     bone_labels: names of the bones; weights, indices: (V, K) skinning weights and bone
     indices; faces: (F, 3) triangles. The part scores are averaged over mesh neighbours
-    ``smooth`` times (smoother part borders), then islands are merged.
+    ``smooth`` times (smoother part borders), then islands are merged. With
+    ``vertices`` (rest pose, +Y up), the trunk's borders (upper torso / lower torso /
+    hips), where the spine bones' weights overlap widely, become horizontal cuts at the
+    heights that best agree with the weights.
     """
     faces = np.asarray(faces, np.int64)
     score = part_scores(bone_labels, weights, indices)
@@ -102,7 +106,30 @@ def anatomy_labels(bone_labels, weights, indices, faces, smooth: int = 3) -> np.
     for _ in range(smooth):
         score = norm @ (adj @ score)
     labels = np.argmax(score[:, 1:], axis=1).astype(np.uint8) + 1
+    if vertices is not None:
+        labels = _cut_trunk(labels, np.asarray(vertices, float)[:, 1])
     return _merge_islands(labels, faces)
+
+
+def _cut_trunk(labels, height):
+    """Relabel trunk vertices (2, 3, 4) by height: above t23 upper torso, below t34
+    hips, the thresholds minimising disagreement with the weight-based labels."""
+    out = labels.copy()
+    trunk = np.isin(labels, (2, 3, 4))
+    cuts = []
+    for upper, lower in ((2, 3), (3, 4)):
+        sel = trunk & np.isin(labels, (upper, lower))
+        h, is_up = height[sel], labels[sel] == upper
+        order = np.argsort(h)
+        h, is_up = h[order], is_up[order]
+        # threshold between h[i-1] and h[i]: errors = uppers below + lowers at/above
+        err = np.concatenate([[0], np.cumsum(is_up)]) + \
+            np.concatenate([np.cumsum((~is_up)[::-1])[::-1], [0]])
+        i = int(np.argmin(err))
+        cuts.append(h[min(i, len(h) - 1)] if i == 0 else 0.5 * (h[i - 1] + h[min(i, len(h) - 1)]))
+    t23, t34 = cuts
+    out[trunk] = np.where(height[trunk] >= t23, 2, np.where(height[trunk] >= t34, 3, 4))
+    return out
 
 
 def _adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:

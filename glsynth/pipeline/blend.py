@@ -180,7 +180,7 @@ class DeepBlender:
             with torch.no_grad():
                 param.clamp_(0, 1)
             losses.append({"step": step, "total": float(total.detach()),
-                           **{n: float(v) for n, v in closure.terms.items()}})
+                           **{n: float(v.detach()) for n, v in closure.terms.items()}})
         with torch.no_grad():
             self.Tb[ty0:ty1, tx0:tx1] = keep * param + (1 - keep) * base
         self.history[k] = {"losses": losses, "seconds": time.perf_counter() - t0}
@@ -227,8 +227,11 @@ class DeepBlender:
 def poisson_blend(renderer, mesh, pasted: PastedTextures, texels, s: BlendSettings) -> np.ndarray:
     """Exact gradient-domain blending of every lesion in its placement view."""
     out_tex = pasted.pasted.copy()
-    T = pasted.original.astype(np.float64) / 255
-    Tp = pasted.pasted.astype(np.float64) / 255
+    T = pasted.original.astype(np.float32) / 255
+    # The guidance field comes from the dilated lesion T_d: its pixels just outside the
+    # mask are the photo's own skin, so gradients across the boundary are the photo's
+    # and not the jump from lesion to body skin.
+    Td = pasted.dilated.astype(np.float32) / 255
     for p in pasted.placements:
         view = Camera.from_dict(p.camera)
         x0, y0, x1, y1 = _crop_box(p, view.width, s.pad)
@@ -244,8 +247,8 @@ def poisson_blend(renderer, mesh, pasted: PastedTextures, texels, s: BlendSettin
         # unlit albedo views: texture values under each pixel (bilinear, as GL samples)
         tx = uv[..., 0] * T.shape[1] - 0.5
         ty = (1 - uv[..., 1]) * T.shape[0] - 0.5
-        src = np.stack([sample_bilinear(Tp.astype(np.float32), tx.ravel(), ty.ravel()).reshape(uv.shape[:2] + (3,))])[0]
-        dst = sample_bilinear(T.astype(np.float32), tx.ravel(), ty.ravel()).reshape(uv.shape[:2] + (3,))
+        src = sample_bilinear(Td, tx.ravel(), ty.ravel()).reshape(uv.shape[:2] + (3,))
+        dst = sample_bilinear(T, tx.ravel(), ty.ravel()).reshape(uv.shape[:2] + (3,))
         src, dst = src * fg[..., None], dst * fg[..., None]
         f = solve_poisson(src, dst, inside)
         _pull_back(out_tex, texels, pasted.instances == p.instance, cam, out, f)

@@ -1,0 +1,271 @@
+"""Background sources: indoor photographs from a folder, or seeded procedural rooms.
+
+Both give a Sequence of HxWx3 uint8 RGB images with ``ids``/``meta`` and
+``get(i, width, height)``, which resizes an image to cover the view (aspect kept) and
+crops the centre.
+"""
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from ..io.images import ImageError, read_rgb
+from .lesions import fractal_noise
+
+log = logging.getLogger(__name__)
+
+BACKGROUND_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+
+
+class BackgroundError(ValueError):
+    """A background folder holds no usable image, or a view size is invalid."""
+
+
+def fit_cover(img: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Resize `img` (aspect kept) so it covers width x height, then crop the centre."""
+    if int(width) < 1 or int(height) < 1:
+        raise BackgroundError(f"background view size must be positive, got {width}x{height}")
+    h, w = img.shape[:2]
+    s = max(width / w, height / h)
+    nw, nh = max(width, int(round(w * s))), max(height, int(round(h * s)))
+    interp = cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR
+    img = cv2.resize(img, (nw, nh), interpolation=interp) if (nw, nh) != (w, h) else img
+    y0, x0 = (nh - height) // 2, (nw - width) // 2
+    return np.ascontiguousarray(img[y0:y0 + height, x0:x0 + width])
+
+
+class _Backgrounds(Sequence):
+    ids: list
+    meta: list
+
+    def __len__(self):
+        return len(self.ids)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        return self._image(range(len(self))[i])
+
+    def get(self, i: int, width: int, height: int) -> np.ndarray:
+        """Image i resized to cover width x height and centre-cropped (uint8 RGB)."""
+        return fit_cover(self[i], width, height)
+
+
+class FolderBackgrounds(_Backgrounds):
+    """Images below a folder, read on access. Files that fail to read are skipped with a
+    warning when indexed; ``skipped`` lists them."""
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        if not os.path.isdir(self.path):
+            raise BackgroundError(f"{self.path}: background folder not found")
+        files = []
+        for root, dirs, names in os.walk(self.path):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            files += [os.path.join(root, n) for n in sorted(names)
+                      if n.lower().endswith(BACKGROUND_EXTS) and not n.startswith(".")]
+        # Check every file once, so that a bad file fails here rather than mid-run.
+        self.paths, self.skipped = [], []
+        for p in files:
+            if _readable(p):
+                self.paths.append(p)
+            else:
+                self.skipped.append(p)
+                log.warning("%s: unreadable background image, skipped", p)
+        if not self.paths:
+            raise BackgroundError(
+                f"{self.path}: no readable background images ({len(files)} image files found, "
+                f"{len(self.skipped)} unreadable; extensions {', '.join(BACKGROUND_EXTS)})")
+        self.ids = [os.path.splitext(os.path.relpath(p, self.path))[0].replace(os.sep, "/")
+                    for p in self.paths]
+        self.meta = [{"path": p, "source": "folder"} for p in self.paths]
+
+    def _image(self, i):
+        return read_rgb(self.paths[i])
+
+
+def _readable(path) -> bool:
+    # Decoding only the header would miss truncated files; backgrounds are few, decode fully.
+    try:
+        read_rgb(path)
+        return True
+    except ImageError:
+        return False
+
+
+def load_backgrounds(path) -> FolderBackgrounds:
+    """Backgrounds from every jpg/png/bmp/tif/webp below `path` (recursive).
+
+    Unreadable files are skipped with a warning; BackgroundError names `path` if none is
+    readable.
+    """
+    return FolderBackgrounds(path)
+
+
+# ---------------------------------------------------------------------------------------
+# Procedural rooms: a wall with a light gradient, a floor in perspective (planks or tiles),
+# and some of: a bright window, a door frame, a picture, furniture boxes, a skirting board.
+
+_WALLS = [(226, 220, 205), (200, 210, 215), (235, 232, 225), (210, 195, 170), (180, 195, 180),
+          (215, 200, 200), (190, 190, 195)]
+_WOODS = [(150, 105, 65), (120, 80, 50), (175, 140, 100), (95, 65, 45), (185, 160, 125)]
+_TILES = [(200, 200, 195), (150, 150, 150), (215, 205, 185), (120, 110, 100), (230, 230, 230)]
+_FURN = [(90, 60, 40), (60, 60, 65), (140, 110, 80), (200, 200, 195), (70, 90, 110), (110, 40, 40)]
+
+
+class ProceduralBackgrounds(_Backgrounds):
+    """`n` seeded indoor scenes, size x size, rendered on access (image i depends only on
+    (seed, i))."""
+
+    def __init__(self, n: int, seed: int = 0, size: int = 512):
+        if int(size) < 64:
+            raise BackgroundError(f"procedural background size must be >= 64 px, got {size}")
+        self.seed, self.size = int(seed), int(size)
+        self.ids = [f"room-{self.seed}-{i}" for i in range(int(n))]
+        self.meta = [dict(self._layout(i), source="procedural", seed=self.seed, index=i)
+                     for i in range(int(n))]
+
+    def _layout(self, i):
+        rng = np.random.default_rng([self.seed, i, 0])
+        pick = lambda table: tuple(int(c) for c in np.clip(
+            np.array(table[rng.integers(len(table))]) + rng.normal(0, 8, 3), 0, 255))
+        return {"horizon": float(rng.uniform(0.55, 0.75)), "wall": pick(_WALLS),
+                "floor": str(rng.choice(["planks", "tiles"])), "floor_colour": pick(_WOODS + _TILES),
+                "light_x": float(rng.uniform(0, 1)), "window": bool(rng.random() < 0.6),
+                "door": bool(rng.random() < 0.5), "picture": bool(rng.random() < 0.5),
+                "furniture": int(rng.integers(0, 3)), "vanish_x": float(rng.uniform(0.3, 0.7)),
+                "corner": float(rng.choice([0.12, 0.88]) + rng.uniform(-0.06, 0.06))
+                if rng.random() < 0.4 else None}
+
+    def _image(self, i):
+        m, n = self.meta[i], self.size
+        rng = np.random.default_rng([self.seed, i, 1])
+        img = np.empty((n, n, 3), np.float32)
+        yy, xx = np.mgrid[0:n, 0:n].astype(np.float32) / n
+        hz = int(m["horizon"] * n)
+        # Wall: soft fall-off from a light source, plus faint plaster texture.
+        light = 1.0 - 0.45 * np.clip(np.hypot(xx - m["light_x"], yy * 0.7), 0, 1.2)
+        img[:] = np.array(m["wall"], np.float32) * light[..., None]
+        img += 3.0 * fractal_noise(rng, (n, n), n / 6, octaves=5)[..., None]
+        if m["window"]:
+            self._window(img, rng, hz, m)
+        if m["door"]:
+            self._door(img, rng, hz)
+        if m["picture"]:
+            self._picture(img, rng, hz)
+        if m["corner"] is not None:  # a room corner: the side wall gets less light
+            x = int(m["corner"] * n)
+            side = slice(0, x) if m["corner"] < 0.5 else slice(x, n)
+            img[:hz, side] *= 0.8
+            cv2.line(img, (x, 0), (x, hz), tuple(float(c) * 0.7 for c in m["wall"]), 1, cv2.LINE_AA)
+        self._floor(img, rng, hz, m)
+        cv2.rectangle(img, (0, hz - max(2, n // 60)), (n, hz), (245, 245, 240), -1)  # skirting
+        for _ in range(m["furniture"]):
+            self._furniture(img, rng, hz)
+        img = cv2.GaussianBlur(img, (0, 0), 0.8) + rng.normal(0, 1.5, img.shape)
+        return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+    def _window(self, img, rng, hz, m):
+        n = self.size
+        w, h = int(rng.uniform(0.18, 0.3) * n), int(rng.uniform(0.3, 0.45) * hz)
+        x0 = int(np.clip(m["light_x"] * n - w / 2, 2, n - w - 2))
+        y0 = int(rng.uniform(0.12, 0.25) * hz)
+        sky = np.array([235, 242, 250], np.float32)
+        gy = np.linspace(0, 1, h)[:, None, None]
+        img[y0:y0 + h, x0:x0 + w] = sky * (1 - 0.1 * gy) + np.array([0, 5, 10]) * gy
+        # Glow on the wall around the window.
+        glow = np.zeros(img.shape[:2], np.float32)
+        glow[y0:y0 + h, x0:x0 + w] = 1
+        img += 25 * cv2.GaussianBlur(glow, (0, 0), n / 12)[..., None]
+        frame = (250, 250, 248)
+        t = max(2, n // 90)
+        cv2.rectangle(img, (x0, y0), (x0 + w, y0 + h), frame, t)
+        cv2.line(img, (x0 + w // 2, y0), (x0 + w // 2, y0 + h), frame, t)
+        cv2.line(img, (x0, y0 + h // 2), (x0 + w, y0 + h // 2), frame, t)
+        cv2.rectangle(img, (x0 - 2 * t, y0 + h), (x0 + w + 2 * t, y0 + h + 2 * t), (235, 235, 230), -1)
+
+    def _door(self, img, rng, hz):
+        n = self.size
+        w = int(rng.uniform(0.14, 0.2) * n)
+        x0 = int(rng.uniform(0.02, 0.98) * (n - w))
+        y0 = int(hz * rng.uniform(0.15, 0.25))
+        col = np.array(_WOODS[rng.integers(len(_WOODS))] if rng.random() < 0.5 else (236, 234, 228), np.float32)
+        img[y0:hz, x0:x0 + w] = col * np.linspace(1.0, 0.85, w)[None, :, None]
+        t = max(2, n // 100)
+        cv2.rectangle(img, (x0 - t, y0 - t), (x0 + w + t, hz), tuple(float(c) for c in col * 0.75), t)
+        for yy in (y0 + (hz - y0) // 8, y0 + (hz - y0) // 2):  # panels
+            cv2.rectangle(img, (x0 + w // 6, yy), (x0 + 5 * w // 6, yy + (hz - y0) // 3),
+                          tuple(float(c) for c in col * 0.9), 1, cv2.LINE_AA)
+        cv2.circle(img, (x0 + int(0.85 * w), y0 + (hz - y0) // 2), max(2, n // 120), (200, 180, 90), -1)
+
+    def _picture(self, img, rng, hz):
+        n = self.size
+        w, h = int(rng.uniform(0.12, 0.22) * n), int(rng.uniform(0.1, 0.18) * n)
+        x0, y0 = int(rng.uniform(0.05, 0.95) * (n - w)), int(rng.uniform(0.1, 0.4) * hz)
+        art = np.empty((h, w, 3), np.float32)
+        top, bottom = rng.uniform(60, 230, 3), rng.uniform(40, 200, 3)
+        art[:] = top + (bottom - top) * np.linspace(0, 1, h)[:, None, None]
+        art += 20 * fractal_noise(rng, (h, w), max(4, w / 4))[..., None]
+        img[y0:y0 + h, x0:x0 + w] = art
+        cv2.rectangle(img, (x0, y0), (x0 + w, y0 + h), (40, 35, 30), max(2, n // 120))
+
+    def _floor(self, img, rng, hz, m):
+        n, ss = self.size, 2  # 2x supersampling: joints near the horizon would alias
+        col = np.array(m["floor_colour"], np.float32)
+        ys = (np.arange(hz * ss, n * ss, dtype=np.float32) + 0.5) / ss
+        depth = (ys - hz + 1) / (n - hz)  # 0 at the horizon, 1 at the bottom (near)
+        vx = m["vanish_x"] * n
+        # Floor coordinates: u across (converging to the vanishing point), v into the room.
+        xs = (np.arange(n * ss, dtype=np.float32) + 0.5) / ss
+        u = (xs[None, :] - vx) / (depth[:, None] + 0.05) / n
+        v = 1.0 / (depth[:, None] + 0.05)
+        u, v = np.broadcast_arrays(u, v)
+        if m["floor"] == "planks":
+            plank = np.floor(u * 6)
+            shade = 1 + 0.08 * np.sin(plank * 12.9898) + 0.05 * np.sin(plank * 78.233 + v * 0.3)
+            grain = 0.05 * np.sin(u * 6 * 40 + 3 * np.sin(v * 2 + plank))
+            joint = (np.abs(u * 6 - np.round(u * 6)) < 0.02 * (v / 2 + 0.5))
+            tex = shade + grain - 0.25 * joint
+        else:
+            tu, tv = u * 4, v * 0.8
+            joint = (np.abs(tu - np.round(tu)) < 0.03 * (v / 3 + 0.5)) | (np.abs(tv - np.round(tv)) < 0.03)
+            tex = 1 + 0.04 * np.sin(np.floor(tu) * 7.1 + np.floor(tv) * 3.3) - 0.2 * joint
+        near = 0.75 + 0.3 * depth[:, None]  # the far floor is darker
+        floor = cv2.resize((tex * near).astype(np.float32), (n, n - hz), interpolation=cv2.INTER_AREA)
+        floor = col * floor[..., None] + 4 * fractal_noise(rng, (n - hz, n), n / 10)[..., None]
+        img[hz:] = floor
+        # A soft reflection of the window on a glossy floor.
+        if m["window"]:
+            x = int(m["light_x"] * n)
+            refl = np.zeros(img.shape[:2], np.float32)
+            cv2.ellipse(refl, (x, hz + (n - hz) // 3), (n // 10, (n - hz) // 4), 0, 0, 360, 1.0, -1)
+            img += 20 * cv2.GaussianBlur(refl, (0, 0), n / 30)[..., None]
+
+    def _furniture(self, img, rng, hz):
+        n = self.size
+        col = np.array(_FURN[rng.integers(len(_FURN))], np.float32)
+        w, h = int(rng.uniform(0.15, 0.4) * n), int(rng.uniform(0.15, 0.35) * n)
+        x0 = int(rng.uniform(0, 1) * (n - w))
+        y1 = int(hz + rng.uniform(0.05, 0.4) * (n - hz))
+        y0, d = max(0, y1 - h), int(0.25 * h)
+        shadow = np.zeros(img.shape[:2], np.float32)
+        cv2.rectangle(shadow, (x0 - 4, y1 - 4), (x0 + w + 8, y1 + 6), 1.0, -1)
+        img *= 1 - 0.35 * cv2.GaussianBlur(shadow, (0, 0), n / 80)[..., None]
+        # Front face, top face (lighter) and legs: a cabinet, table or sofa-like box.
+        img[y0:y1, x0:x0 + w] = col * np.linspace(0.95, 0.8, y1 - y0)[:, None, None]
+        top = np.array([[x0, y0], [x0 + w, y0], [x0 + w - d // 2, y0 - d // 2], [x0 + d // 2, y0 - d // 2]])
+        cv2.fillConvexPoly(img, top.astype(np.int32), tuple(float(c) for c in np.minimum(col * 1.2, 255)))
+        if rng.random() < 0.5:  # drawers / cushions
+            k = int(rng.integers(2, 4))
+            for j in range(1, k):
+                x = x0 + j * w // k
+                cv2.line(img, (x, y0 + 3), (x, y1 - 3), tuple(float(c) for c in col * 0.6), 1, cv2.LINE_AA)
+
+
+def procedural_backgrounds(n: int, seed: int = 0, size: int = 512) -> ProceduralBackgrounds:
+    """`n` seeded procedural indoor scenes (size x size); see ProceduralBackgrounds."""
+    return ProceduralBackgrounds(n, seed, size)

@@ -1,0 +1,88 @@
+"""The ``glsynth`` command line."""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+
+def _config(args):
+    from .config import load_config
+    return load_config(args.config, args.set or ())
+
+
+def _add_config_args(p, out=True):
+    p.add_argument("--config", default=None, help="YAML config (default: the embedded configs/default.yaml)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a config value, e.g. --set views.per_body=20 (repeatable)")
+    if out:
+        p.add_argument("--out", required=True, help="output folder")
+
+
+def cmd_generate(args):
+    from .pipeline import generate
+    cfg = _config(args)
+    manifest = generate(cfg, args.out, resume=args.resume)
+    c = manifest["counts"]
+    print(f"{c['images']} images, {c['lesion_annotations']} lesion annotations in {args.out} "
+          f"({manifest['timings_seconds']['total']:.1f} s)")
+
+
+def cmd_stage(args):
+    from . import pipeline
+    cfg = _config(args)
+    stage = {"paste": (pipeline.SelectAndPaste, "paste_on_locations"),
+             "blend": (pipeline.BlendLesions, "blend_lesions"),
+             "views": (pipeline.Generate2DViews, "synthesize_views")}[args.command]
+    getattr(stage[0](cfg, args.out), stage[1])()
+
+
+def cmd_show(args):
+    from .show import contact_sheet
+    path = contact_sheet(args.dir, args.out, n=args.n)
+    print(f"wrote {path}")
+
+
+def cmd_info(args):
+    from .gl.renderer import Renderer
+    r = Renderer(8, 8, backend=args.backend)
+    for k in ("GL_RENDERER", "GL_VERSION", "GL_VENDOR"):
+        print(f"{k}: {r.info[k]}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="glsynth", description="Synthetic in-the-wild dermatology "
+                                 "images with dense labels")
+    ap.add_argument("-v", "--verbose", action="store_true")
+    sub = ap.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("generate", help="run the whole pipeline into a dataset folder")
+    _add_config_args(p)
+    p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
+    p.set_defaults(fn=cmd_generate)
+    for name, text in (("paste", "select locations and paste lesions into body textures"),
+                       ("blend", "blend pasted lesions (needs paste)"),
+                       ("views", "render annotated views (uses blend or paste results)")):
+        p = sub.add_parser(name, help=text)
+        _add_config_args(p)
+        p.set_defaults(fn=cmd_stage)
+    p = sub.add_parser("show", help="contact sheet of a dataset: image, boxes, semantic, anatomy, depth")
+    p.add_argument("dir")
+    p.add_argument("--out", required=True, help="PNG to write")
+    p.add_argument("-n", type=int, default=6, help="number of samples")
+    p.set_defaults(fn=cmd_show)
+    p = sub.add_parser("info", help="print the OpenGL renderer in use")
+    p.add_argument("--backend", default=None)
+    p.set_defaults(fn=cmd_info)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        args.fn(args)
+    except (ValueError, FileNotFoundError, FileExistsError, RuntimeError) as exc:
+        print(f"glsynth {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,172 @@
+"""End-to-end pipeline: labels consistent on every sample, paste round trip, blending
+behaviour, determinism, resume, COCO, config errors."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+import glsynth as gs
+from glsynth.config import ConfigError, load_config
+from glsynth.io.images import read_image, read_rgb
+
+SMALL = ["bodies.count=1", "bodies.texture_size=512", "lesions.per_body=2", "blend.steps=4",
+         "blend.features=filters", "views.per_body=4", "views.size=128", "views.supersample=1",
+         "paste.view_size=256", "backgrounds.count=3", "seed=7"]
+
+
+def small_config(*extra):
+    return load_config(None, SMALL + list(extra))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ds")
+    gs.pipeline.generate(small_config(), out)
+    return out
+
+
+def _samples(out):
+    tgt = os.path.join(out, "targets")
+    return sorted(f[:-5] for f in os.listdir(tgt) if f.endswith(".json"))
+
+
+def test_every_sample_is_consistent(dataset):
+    ids = _samples(dataset)
+    assert len(ids) == 4
+    seen_lesion = False
+    for sid in ids:
+        meta = json.load(open(os.path.join(dataset, "targets", f"{sid}.json")))
+        img = read_rgb(os.path.join(dataset, "images", f"{sid}.png"))
+        sem = read_image(os.path.join(dataset, "targets", f"{sid}_semantic.png"))
+        inst = read_image(os.path.join(dataset, "targets", f"{sid}_instances.png"))
+        ana = read_image(os.path.join(dataset, "targets", f"{sid}_anatomy.png"))
+        import tifffile
+        depth = tifffile.imread(os.path.join(dataset, "targets", f"{sid}_depth.tiff"))
+        assert img.shape == (128, 128, 3) and sem.dtype == np.uint8 and inst.dtype == np.uint16
+        assert depth.dtype == np.float32 and np.isfinite(depth).all()
+        assert set(np.unique(sem)) <= {0, 1, 2, 3}
+        lesion = sem == 2
+        seen_lesion |= bool(lesion.any())
+        assert (inst[lesion] > 0).all() and (inst[~lesion] == 0).all()
+        assert (ana[lesion] > 0).all() and (ana[sem > 0] > 0).all() and (ana[sem == 0] == 0).all()
+        assert ((depth == -1) == (sem == 0)).all()
+        assert (depth[sem > 0] > 0).all()
+        # the paper's 3-class target is a partition of the image
+        from glsynth.dataset import three_class
+        three = three_class(sem)
+        assert set(np.unique(three)) <= {0, 1, 2} and three.size == sem.size
+        for l in meta["lesions"]:
+            ys, xs = np.nonzero(inst == l["instance"])
+            assert l["box"] == [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
+            assert l["area"] == len(xs)
+        assert (meta["fractions"]["skin"]) >= 0.1
+        for key in ("eye", "target", "up", "fov_deg", "w", "point", "normal", "intrinsics"):
+            assert key in meta["camera"]
+    assert seen_lesion, "no lesion visible in any view"
+
+
+def test_coco_loads_with_pycocotools(dataset):
+    coco_mod = pytest.importorskip("pycocotools.coco")
+    from pycocotools import mask as mask_utils
+    coco = coco_mod.COCO(os.path.join(dataset, "annotations.coco.json"))
+    assert len(coco.getImgIds()) == 4
+    for ann in coco.loadAnns(coco.getAnnIds()):
+        img = coco.loadImgs(ann["image_id"])[0]
+        m = coco.annToMask(ann)
+        sid = img["glsynth_id"]
+        inst = read_image(os.path.join(dataset, "targets", f"{sid}_instances.png"))
+        assert (m.astype(bool) == (inst == ann["glsynth_instance"])).all()
+        assert ann["area"] == int(m.sum())
+        x, y, w, h = ann["bbox"]
+        assert mask_utils.toBbox(mask_utils.encode(np.asfortranarray(m))).tolist() == [x, y, w, h]
+
+
+def test_manifest_and_params(dataset):
+    man = json.load(open(os.path.join(dataset, "manifest.json")))
+    assert man["seed"] == 7 and man["counts"]["images"] == 4
+    assert "llvmpipe" in man["gl_renderer"] or man["gl_renderer"]
+    assert man["blend_features"].startswith("filters")
+    for k in ("paste", "blend", "views", "total"):
+        assert k in man["timings_seconds"]
+    rows = open(os.path.join(dataset, "params.csv")).read().strip().splitlines()
+    assert len(rows) == 5 and rows[0].startswith("id,")
+
+
+def test_torch_dataset_and_show(dataset, tmp_path):
+    from glsynth.dataset import SynthDataset
+    ds = SynthDataset(dataset, targets=("three_class", "anatomy_groups", "depth", "boxes"))
+    item = ds[0]
+    assert item["image"].shape == (3, 128, 128) and item["image"].dtype == torch.float32
+    assert item["three_class"].max() <= 2 and item["anatomy_groups"].max() <= 7
+    from glsynth.show import contact_sheet
+    path = contact_sheet(dataset, tmp_path / "sheet.png", n=3)
+    sheet = read_rgb(path)
+    assert sheet.shape[0] == 5 * 256 and sheet.shape[1] == 3 * 256
+
+
+def _dataset_bytes(out):
+    files = {}
+    for root, _, names in os.walk(out):
+        for n in names:
+            rel = os.path.relpath(os.path.join(root, n), out)
+            if rel != "manifest.json" and not rel.startswith("bodies"):
+                files[rel] = open(os.path.join(root, n), "rb").read()
+    return files
+
+
+def test_same_seed_same_bytes(dataset, tmp_path):
+    gs.pipeline.generate(small_config(), tmp_path / "again")
+    a, b = _dataset_bytes(dataset), _dataset_bytes(tmp_path / "again")
+    assert a.keys() == b.keys()
+    assert all(a[k] == b[k] for k in a), [k for k in a if a[k] != b[k]][:5]
+
+
+def test_resume_after_kill(dataset, tmp_path):
+    out = tmp_path / "killed"
+    args = [sys.executable, "-m", "glsynth.cli", "generate", "--out", str(out)]
+    for s in SMALL:
+        args += ["--set", s]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 600
+    while time.time() < deadline and proc.poll() is None:
+        tgt = out / "targets"
+        if tgt.is_dir() and any(n.endswith(".json") for n in os.listdir(tgt)):
+            proc.send_signal(signal.SIGKILL)
+            break
+        time.sleep(0.05)
+    proc.wait()
+    done = _samples(out) if (out / "targets").is_dir() else []
+    assert len(done) < 4, "run finished before it could be killed"
+    # nothing half-written: only complete files, no temporary leftovers
+    leftovers = [n for r, _, ns in os.walk(out) for n in ns if n.startswith(".tmp-")]
+    assert not leftovers
+    with pytest.raises(FileExistsError):
+        gs.pipeline.generate(small_config(), out)
+    gs.pipeline.generate(small_config(), out, resume=True)
+    assert _samples(out) == _samples(dataset)
+    a, b = _dataset_bytes(dataset), _dataset_bytes(out)
+    assert a.keys() == b.keys() and all(a[k] == b[k] for k in a)
+
+
+@pytest.mark.parametrize("override,key", [
+    ("blend.method=magic", "blend.method"), ("views.size=8", "views.size"),
+    ("views.w=[1.0]", "views.w"), ("bodies.count=0", "bodies.count"),
+    ("nonsense.key=1", "nonsense"), ("views.min_skin=2", "views.min_skin"),
+    ("blend.style=-1", "blend.style"), ("outputs=[rgb, sparkles]", "outputs"),
+])
+def test_bad_config_names_the_key(override, key):
+    with pytest.raises(ConfigError, match=key):
+        small_config(override)
+
+
+def test_cli_reports_config_errors(tmp_path, capsys):
+    from glsynth.cli import main
+    assert main(["generate", "--out", str(tmp_path), "--set", "views.per_body=-3"]) == 2
+    assert "views.per_body" in capsys.readouterr().err
