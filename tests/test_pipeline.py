@@ -144,13 +144,19 @@ def test_resume_after_kill(dataset, tmp_path):
     proc.wait()
     done = _samples(out) if (out / "targets").is_dir() else []
     assert len(done) < 4, "run finished before it could be killed"
-    # nothing half-written: only complete files, no temporary leftovers
-    leftovers = [n for r, _, ns in os.walk(out) for n in ns if n.startswith(".tmp-")]
-    assert not leftovers
+    # nothing half-written under a final name: every image decodes, every JSON parses
+    for root, _, names in os.walk(out):
+        for n in names:
+            path = os.path.join(root, n)
+            if n.endswith(".png"):
+                assert read_image(path) is not None
+            elif n.endswith(".json"):
+                json.load(open(path))
     with pytest.raises(FileExistsError):
         gs.pipeline.generate(small_config(), out)
     gs.pipeline.generate(small_config(), out, resume=True)
     assert _samples(out) == _samples(dataset)
+    assert not [n for r, _, ns in os.walk(out) for n in ns if n.startswith(".tmp-")]
     a, b = _dataset_bytes(dataset), _dataset_bytes(out)
     assert a.keys() == b.keys() and all(a[k] == b[k] for k in a)
 

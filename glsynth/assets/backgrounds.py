@@ -193,7 +193,8 @@ class ProceduralBackgrounds(_Backgrounds):
         w = int(rng.uniform(0.14, 0.2) * n)
         x0 = int(rng.uniform(0.02, 0.98) * (n - w))
         y0 = int(hz * rng.uniform(0.15, 0.25))
-        col = np.array(_WOODS[rng.integers(len(_WOODS))] if rng.random() < 0.5 else (236, 234, 228), np.float32)
+        painted = rng.random() < 0.5
+        col = np.array((236, 234, 228) if painted else _WOODS[rng.integers(len(_WOODS))], np.float32)
         img[y0:hz, x0:x0 + w] = col * np.linspace(1.0, 0.85, w)[None, :, None]
         t = max(2, n // 100)
         cv2.rectangle(img, (x0 - t, y0 - t), (x0 + w + t, hz), tuple(float(c) for c in col * 0.75), t)

@@ -246,10 +246,15 @@ def _save(path: Path, arrays: dict):
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
-        with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(fh, meta=np.array(json.dumps(arrays["meta"])),
-                                **{k: v for k, v in arrays.items() if k != "meta"})
-        os.replace(tmp, path)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(fh, meta=np.array(json.dumps(arrays["meta"])),
+                                    **{k: v for k, v in arrays.items() if k != "meta"})
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
     except OSError as exc:
         log.warning("could not cache body at %s: %s", path, exc)
 

@@ -222,7 +222,7 @@ def load_lesions(path, layout: str = "fitz17k", colour_constancy: bool = False,
         raise LesionError(f"unknown lesion layout {layout!r} (expected 'fitz17k' or 'pairs')")
     rows = _read_csv_rows(path)
     for e in entries:
-        row = rows.get(e.id) or rows.get(os.path.basename(e.image_path))
+        row = rows.get(e.meta.get("image_id", e.id)) or rows.get(os.path.basename(e.image_path))
         if row:
             e.meta.update(row)
     lesions = LesionSet(path, entries, colour_constancy, lazy, skipped)
@@ -258,6 +258,10 @@ def _index_fitz17k(path, image_dir):
     for folder in folders:
         fid = os.path.basename(folder)
         img = _find_image(folder, ("image", fid))
+        if img is None:  # otherwise accept a single non-mask image of any name
+            others = [f for f in sorted(os.listdir(folder)) if f.lower().endswith(IMAGE_EXTS)
+                      and f not in _FITZ_MASKS and os.path.isfile(os.path.join(folder, f))]
+            img = os.path.join(folder, others[0]) if len(others) == 1 else None
         if img is None and image_dir is not None:
             img = _find_image(image_dir, (fid,))
         if img is None:
@@ -268,10 +272,15 @@ def _index_fitz17k(path, image_dir):
         if not masks:
             skipped["folders without selected_lesion.png or lesions.png"] += 1
             continue
-        meta = {"layout": "fitz17k", "folder": folder,
+        meta = {"layout": "fitz17k", "folder": folder, "image_id": fid,
                 "lesions_mask_path": os.path.join(folder, "lesions.png"),
                 "nonskin_mask_path": os.path.join(folder, "nonskin.png")}
         entries.append(_Entry(fid, img, masks, meta))
+    # The same image annotated in several (annotator) folders: keep ids unique.
+    counts = Counter(e.id for e in entries)
+    for e in entries:
+        if counts[e.id] > 1:
+            e.id = os.path.relpath(e.meta["folder"], path).replace(os.sep, "/")
     return entries, skipped
 
 
@@ -491,7 +500,8 @@ def _nevus(rng, lab, base, n):
     radius = rng.uniform(0.17, 0.27) * n
     sd = _blob(rng, n, radius, rng.uniform(0.04, 0.09), rng.uniform(0.02, 0.05), rng.uniform(0.75, 1.0))
     dark = rng.uniform(0.5, 0.72)
-    col = np.array([max(14.0, base[0] * dark), rng.uniform(7, 12), rng.uniform(17, 27) * min(1, base[0] / 50)])
+    col = np.array([max(14.0, base[0] * dark), rng.uniform(7, 12),
+                    rng.uniform(17, 27) * min(1, base[0] / 50)])
     t = np.empty_like(lab)
     t[:] = col
     core = _smoothstep(0, radius * 0.8, sd)

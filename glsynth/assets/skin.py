@@ -243,7 +243,8 @@ def normalise_clothing(clothing, female: bool, rng: np.random.Generator) -> dict
     if out["bottom"] not in BOTTOMS or out["top"] not in TOPS:
         raise ValueError(f"clothing: bottom must be one of {BOTTOMS}, top one of {TOPS}; "
                          f"got {out['bottom']!r}, {out['top']!r}")
-    out["rgb"], out["trim_rgb"] = tuple(int(c) for c in out["rgb"]), tuple(int(c) for c in out["trim_rgb"])
+    for key in ("rgb", "trim_rgb"):
+        out[key] = tuple(int(c) for c in out[key])
     return out
 
 
@@ -353,7 +354,8 @@ class _Painter:
         self.alpha = np.zeros(n, np.float32)           # its coverage
         self.region = np.zeros(n, np.float32)          # non-skin regions (> 0.5)
         # texel footprint in metres (for pore frequency and nevus sizes)
-        area3 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum() / 2
+        cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        area3 = np.linalg.norm(cross, axis=1).sum() / 2
         self.texel_m = float(np.sqrt(area3 / n))
 
     def over(self, rgb, alpha, region=None, sel=None):
@@ -487,8 +489,8 @@ class _Painter:
             k = j[f"finger2-1.{side}"] - j[f"finger5-1.{side}"]
             nrm = sign * np.cross(d, k)
             nrm /= np.linalg.norm(nrm)
-            near = _smoothstep(0.0, 0.3, (tx.label == (15 if side == "L" else 16)).astype(np.float32))
-            out += near * _smoothstep(0.1, 0.6, tx.nrm @ nrm)
+            hand = (tx.label == (15 if side == "L" else 16)).astype(np.float32)
+            out += hand * _smoothstep(0.1, 0.6, tx.nrm @ nrm)
         return out
 
     # ---- nevi ----------------------------------------------------------------------------
@@ -517,7 +519,8 @@ class _Painter:
             wobble = 1.0 + 0.15 * self.noise(tx.pos[near] - c, 1.0 / r)
             alpha = 1.0 - _smoothstep(0.75, 1.15, d[near] / (r * wobble))
             L0 = lab[near, 0].mean()
-            target = np.array([max(L0 * 0.55, L0 - 28.0) - 4 * rng.random(), lab[near, 1].mean() + 3.0,
+            target = np.array([max(L0 * 0.55, L0 - 28.0) - 4 * rng.random(),
+                               lab[near, 1].mean() + 3.0,
                                lab[near, 2].mean() + 4.0 * rng.random()], np.float32)
             lab[near] = lab[near] * (1 - alpha[:, None]) + target * alpha[:, None]
             mask[near] = np.maximum(mask[near], alpha)
@@ -550,8 +553,8 @@ class _Painter:
         for side in ("L", "R"):
             c = j[f"eye.{side}"]
             near = np.linalg.norm(tx.pos - c, axis=1) < 0.02 * s
-            eyeball = near & (tx.label == 1) & (tx.sample(
-                _segment_mask(size, [f"eye_front.{side}", f"eye_back.{side}"]).astype(np.float32)) > 0)
+            ball = _segment_mask(size, [f"eye_front.{side}", f"eye_back.{side}"])
+            eyeball = near & (tx.label == 1) & tx.sample(ball)
             if not eyeball.any():
                 continue
             q = tx.pos[eyeball]
@@ -561,9 +564,11 @@ class _Painter:
             ang = np.degrees(np.arccos(np.clip(d[:, 2], -1, 1)))
             around = np.arctan2(d[:, 1], d[:, 0])
             streak = nz(np.stack([np.cos(around) * 8, np.sin(around) * 8, ang * 0.05], 1), 3.0)
-            sclera = np.array([0.93, 0.90, 0.86], np.float32) - 0.06 * _smoothstep(20, 70, ang)[:, None] * np.array([0, 1, 1])
+            pink = 0.06 * _smoothstep(20, 70, ang)[:, None] * np.array([0, 1, 1])
+            sclera = np.array([0.93, 0.90, 0.86], np.float32) - pink
             col = np.broadcast_to(sclera, (len(q), 3)).copy()
-            iris_col = iris[None] * (0.85 + 0.3 * streak[:, None]) * (1 - 0.35 * _smoothstep(18, 27, ang))[:, None]
+            limbus = 1 - 0.35 * _smoothstep(18, 27, ang)
+            iris_col = iris[None] * ((0.85 + 0.3 * streak) * limbus)[:, None]
             w_iris = 1 - _smoothstep(26, 29, ang)
             col = col * (1 - w_iris[:, None]) + iris_col * w_iris[:, None]
             w_pupil = 1 - _smoothstep(9, 11, ang)
@@ -682,7 +687,8 @@ class _Painter:
             t = d @ a / length
             th = np.arctan2(d @ fr, d @ e)            # 0 outer, +pi/2 front
             if briefs:
-                cut = 0.19 - 0.22 * np.clip(np.cos(th), 0, 1) ** 1.5 + 0.04 * np.clip(-np.sin(th), 0, 1)
+                outer, back = np.clip(np.cos(th), 0, 1), np.clip(-np.sin(th), 0, 1)
+                cut = 0.19 - 0.22 * outer ** 1.5 + 0.04 * back
             else:
                 cut = spec["shorts_length"] - 0.05 * np.cos(th)
             inside_t = np.where(on, (cut - t) * length, inside_t)
@@ -706,7 +712,8 @@ class _Painter:
         xs, ws = 0.092 * s, 0.02 * s
         ax = np.abs(p[:, 0])
         front = _smoothstep(-0.02 * s, 0.02 * s, p[:, 2] - j["spine01"][2])
-        top_edge = (neck_front + 0.09 * s * np.clip(ax / xs, 0, 1.2) ** 2) * front + back_top * (1 - front)
+        scoop = neck_front + 0.09 * s * np.clip(ax / xs, 0, 1.2) ** 2
+        top_edge = scoop * front + back_top * (1 - front)
         strap = np.clip(ws - np.abs(ax - xs), -1, None)
         aa = 0.0015 * s
         band_body = np.minimum(p[:, 1] - bottom, top_edge - p[:, 1])

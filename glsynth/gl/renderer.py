@@ -66,7 +66,8 @@ class _MeshOnGPU:
 
 
 class Renderer:
-    """Offscreen renderer of ``width`` x ``height`` images.
+    """Offscreen renderer. Images have the size of the camera they are rendered from;
+    ``width`` x ``height`` is the size its framebuffers are first made for.
 
     backend: 'egl', 'osmesa', 'window' (attach to the current context), or None for
     ``GLSYNTH_GL_BACKEND`` (default 'egl'). ``ctx`` may pass an existing moderngl context.
@@ -77,6 +78,10 @@ class Renderer:
             raise ValueError(f"render size must be positive, got {width}x{height}")
         self.width, self.height = int(width), int(height)
         self.ctx = ctx or create_context(backend)
+        with self.ctx:  # a shared context need not be current on this thread
+            self._setup()
+
+    def _setup(self):
         self.ctx.depth_clamp_range = (0.0, 1.0)  # enables GL_DEPTH_CLAMP (see Camera.clip_planes)
         vert, geom = shader_source("mesh.vert"), shader_source("mesh.geom")
         self.programs = {
@@ -206,9 +211,7 @@ class Renderer:
         unknown = set(passes) - set(PASSES)
         if unknown:
             raise ValueError(f"unknown pass(es) {sorted(unknown)}; choose from {PASSES}")
-        if camera.window is None and (camera.width, camera.height) != (self.width, self.height):
-            camera = camera.with_size(self.width, self.height)
-        size = (camera.width, camera.height)
+        size = (camera.width, camera.height)  # framebuffers are cached per size
         gpu = self._gpu_mesh(mesh)
         view = camera.view_matrix()
         if camera.near is not None and camera.far is not None:

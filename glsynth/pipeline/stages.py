@@ -95,19 +95,12 @@ class SelectAndPaste(_Stage):
             rng = rng_for(cfg.seed, "lesion-choice", body_id)
             chosen = [lesions[int(i)] for i in rng.choice(len(lesions), cfg.lesions.per_body,
                                                              replace=len(lesions) < cfg.lesions.per_body)]
-            renderer = self._paste_renderer()
+            renderer = self.renderer
             texels = TexelGeometry.of(renderer, body.mesh)
             result = paste_lesions(renderer, body, texels, chosen, settings, (body_id,), cfg.seed)
             result.save(folder)
             self._time("paste", time.perf_counter() - t0)
             log.info("%s: %d of %d lesions placed", body_id, len(result.placements), len(chosen))
-
-    def _paste_renderer(self):
-        from ..gl.renderer import Renderer
-        s = self.cfg.paste.view_size
-        if self.renderer.width == s:
-            return self.renderer
-        return Renderer(s, s, ctx=self.renderer.ctx)
 
 
 class BlendLesions(_Stage):
@@ -127,7 +120,7 @@ class BlendLesions(_Stage):
             pasted = PastedTextures.load(folder, body.mesh.texture)
             t0 = time.perf_counter()
             record = {"method": b.method, "lesions": {}}
-            renderer = SelectAndPaste._paste_renderer(self)
+            renderer = self.renderer
             if b.method == "paste" or not pasted.placements:
                 blended = pasted.pasted
             elif b.method == "poisson":
@@ -171,7 +164,7 @@ class Generate2DViews(_Stage):
             body = load_body(cfg, body_id)
             textured, instances, placements = self._textures(body_id, body)
             mesh_b = body.mesh.copy_with(texture=textured)
-            renderer = self.renderer if self.renderer.width == v.size else self._view_renderer()
+            renderer = self.renderer
             lesion_points = self._lesion_points(renderer, body, instances, placements)
             nevi_map = V.nevi_label_map(body)
             self._time("load_body", time.perf_counter() - t0)
@@ -185,10 +178,6 @@ class Generate2DViews(_Stage):
         if rejected:
             log.info("rejected views: %s", ", ".join(f"{n}x {r}" for r, n in sorted(rejected.items())))
         return rejected
-
-    def _view_renderer(self):
-        from ..gl.renderer import Renderer
-        return Renderer(self.cfg.views.size, self.cfg.views.size, ctx=self.renderer.ctx)
 
     def _textures(self, body_id, body):
         folder = self.body_dir(body_id)
@@ -267,6 +256,8 @@ def generate(cfg: Config, out, resume=False):
             raise FileExistsError(f"{out}: output folder is not empty; pass --resume to continue "
                                   "the run there, or choose another folder")
     os.makedirs(out, exist_ok=True)
+    if resume:
+        _remove_partial_writes(out)
     t_start = time.perf_counter()
     stage_args = dict(config=cfg, out=out)
     paste = SelectAndPaste(**stage_args)
@@ -294,6 +285,14 @@ def generate(cfg: Config, out, resume=False):
                 "rejected_views": rejected}
     finalize(out, manifest)
     return manifest
+
+
+def _remove_partial_writes(out):
+    """Temporary files of writes a killed run never renamed into place."""
+    for root, _, names in os.walk(out):
+        for n in names:
+            if n.startswith(".tmp-"):
+                os.unlink(os.path.join(root, n))
 
 
 def _versions():

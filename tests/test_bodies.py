@@ -1,0 +1,276 @@
+"""Built-in anny bodies: anatomy labels, skin tones, non-skin mask, caching.
+
+References are independent of the code under test: CIELAB from OpenCV's float sRGB ->
+Lab conversion (D65), UV coverage from cv2.fillPoly, mesh connectivity from scipy.
+Textures are 512 texels here to keep the suite fast.
+"""
+import time
+
+import cv2
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+pytest.importorskip("anny")
+
+from glsynth.assets import anatomy  # noqa: E402
+from glsynth.assets.bodies import POSES, make_body  # noqa: E402
+
+SIZE = 512
+ITA_BANDS = {1: (55, 90), 2: (41, 55), 3: (28, 41), 4: (10, 28), 5: (-30, 10), 6: (-90, -30)}
+BLUE = "royal-blue"
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("glsynth-cache")
+
+
+@pytest.fixture(scope="module")
+def default_body(cache):
+    t0 = time.perf_counter()
+    body = make_body(seed=0, pose="a-pose", texture_size=SIZE, cache_dir=cache)
+    return body, time.perf_counter() - t0
+
+
+@pytest.fixture(scope="module")
+def tone_bodies(cache):
+    return {f: make_body(seed=100 + f, fitzpatrick=f, texture_size=SIZE, cache_dir=cache,
+                         clothing={"bottom": "shorts", "rgb": BLUE, "trim_rgb": BLUE})
+            for f in range(1, 7)}
+
+
+def _lab(rgb_uint8):
+    img = np.asarray(rgb_uint8, np.float32).reshape(-1, 1, 3) / 255.0
+    return cv2.cvtColor(img, cv2.COLOR_RGB2Lab).reshape(np.shape(rgb_uint8))
+
+
+def _covered(mesh, size):
+    """Texels whose centre lies well inside a UV triangle (eroded by one texel)."""
+    img = np.zeros((size, size), np.uint8)
+    tri = mesh.uvs[mesh.face_uvs] * [size, -size] + [0, size]
+    pts = np.round(tri * 16).astype(np.int32)  # 4 fractional bits
+    cv2.fillPoly(img, list(pts), 1, lineType=cv2.LINE_8, shift=4)
+    return cv2.erode(img, np.ones((3, 3), np.uint8)).astype(bool)
+
+
+def _components(n, faces):
+    i, j = faces.ravel(), np.roll(faces, 1, axis=1).ravel()
+    adj = sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)).tocsr()
+    return adj + adj.T
+
+
+def _vertex_texels(mesh, size):
+    """(row, col) texel of each face corner, and the vertex it belongs to."""
+    uv = mesh.uvs[mesh.face_uvs.ravel()]
+    col = np.clip((uv[:, 0] * size).astype(int), 0, size - 1)
+    row = np.clip(((1 - uv[:, 1]) * size).astype(int), 0, size - 1)
+    return mesh.faces.ravel(), row, col
+
+
+# ---- anatomy ------------------------------------------------------------------------
+def test_all_16_labels_each_one_connected_region(default_body):
+    body, _ = default_body
+    labels, faces = body.anatomy, body.mesh.faces
+    assert labels.dtype == np.uint8 and len(labels) == len(body.mesh.vertices)
+    assert np.array_equal(body.mesh.vertex_labels, labels)
+    assert set(np.unique(labels)) == set(range(1, 17))
+    adj = _components(len(labels), faces)
+    n_comp, comp = connected_components(adj, directed=False)
+    main = comp == np.argmax(np.bincount(comp))
+    # separate pieces (eyeballs, tongue) are part of the head
+    assert np.all(labels[~main] == 1)
+    for part in range(1, 17):
+        keep = np.flatnonzero(main & (labels == part))
+        sub = adj[keep][:, keep]
+        n, _ = connected_components(sub, directed=False)
+        assert n == 1, f"part {part} ({anatomy.PART_NAMES[part]}) is split into {n} pieces"
+
+
+def test_left_labels_on_the_bodys_left(default_body):
+    body, _ = default_body
+    v, labels = body.mesh.vertices, body.anatomy
+    up = np.array([0.0, 1.0, 0.0])
+    head = v[labels == 1]
+    nose = head[np.argmax(head[:, 2])]
+    # the body faces +Z: the nose is in front of the head, the toes in front of the heels
+    assert nose[2] > head[:, 2].mean() + 0.05
+    feet = v[np.isin(labels, (9, 10))]
+    assert np.ptp(feet[:, 2]) > 0.15 and feet[:, 2].max() - v[:, 2].mean() > 0.08
+    front = np.array([0.0, 0.0, 1.0])
+    left = np.cross(up, front)   # a person facing +Z with +Y up has their left at +X
+    assert np.allclose(left, [1, 0, 0])
+    for l_part in (5, 7, 9, 11, 13, 15):
+        xl = v[labels == l_part] @ left
+        xr = v[labels == l_part + 1] @ left
+        assert np.all(xl > 0) and np.all(xr < 0), anatomy.PART_NAMES[l_part]
+    # hands, arms, feet are symmetric: same number of vertices each side
+    for l_part in (5, 7, 9, 11, 13, 15):
+        assert (labels == l_part).sum() == (labels == l_part + 1).sum()
+
+
+def test_group_labels():
+    labels = np.arange(17, dtype=np.uint8)
+    expected = [0, 1, 2, 2, 3, 4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 7, 7]
+    assert anatomy.group_labels(labels).tolist() == expected
+    assert anatomy.group_labels(labels.reshape(1, 17)).shape == (1, 17)
+    assert [anatomy.GROUPS[i] for i in range(17)] == expected
+
+
+def test_frame_units_and_pose(default_body):
+    body, _ = default_body
+    v = body.mesh.vertices
+    assert abs(v[:, 1].min()) < 1e-9                      # standing on y = 0
+    assert 1.4 < v[:, 1].max() < 2.05                      # metres
+    pelvis = v[body.anatomy == 4].mean(0)
+    assert abs(pelvis[0]) < 0.02 and abs(pelvis[2]) < 0.1
+    assert body.meta["pose"] == "a-pose" and set(POSES) >= {"a-pose", "arms-down",
+                                                            "arms-raised", "slight-turn"}
+
+
+def test_explicit_arguments_override_only_their_part(default_body, cache):
+    body, _ = default_body
+    other = make_body(seed=0, pose="arms-raised", texture_size=SIZE, cache_dir=cache)
+    assert other.meta["phenotype"] == body.meta["phenotype"]
+    assert other.meta["ita"] == body.meta["ita"]
+    hands = np.isin(body.anatomy, (15, 16))
+    shoulders = body.mesh.vertices[np.isin(body.anatomy, (11, 12)), 1].max()
+    assert body.mesh.vertices[hands, 1].max() < shoulders          # A-pose: hands low
+    assert other.mesh.vertices[hands, 1].min() > shoulders         # raised: above
+    assert np.array_equal(other.mesh.texture, body.mesh.texture)   # same skin
+
+
+def test_seed_samples_phenotype_pose_and_look(tone_bodies):
+    metas = [b.meta for b in tone_bodies.values()]
+    for m in metas:
+        ph = m["phenotype"]
+        assert 0.6 <= ph["age"] <= 0.95                    # adults
+        assert m["pose"] in POSES and m["sex"] in ("male", "female")
+        assert (m["clothing"]["top"] == "sports-top") == (m["sex"] == "female")
+    assert len({m["phenotype"]["weight"] for m in metas}) == len(metas)
+    assert len({m["pose"] for m in metas}) > 1
+    heights = [b.mesh.vertices[:, 1].max() for b in tone_bodies.values()]
+    assert np.ptp(heights) > 0.03
+
+
+# ---- skin tone ------------------------------------------------------------------------
+def _healthy_skin(body):
+    m = body.mesh
+    size = m.texture.shape[0]
+    ok = _covered(m, size) & (body.nonskin == 0) & (m.textures["features"] == 0)
+    for x0, y0, x1, y1 in body.nevi:
+        ok[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = False
+    return m.texture[ok]
+
+
+def test_ita_in_band_and_monotone(tone_bodies):
+    medians = []
+    for f, body in tone_bodies.items():
+        assert body.meta["fitzpatrick"] == f
+        lab = _lab(_healthy_skin(body))
+        ita = np.degrees(np.arctan2(lab[:, 0] - 50.0, lab[:, 2]))
+        med = float(np.median(ita))
+        lo, hi = ITA_BANDS[f]
+        assert lo < med <= hi, f"type {f}: median ITA {med:.1f} outside ({lo}, {hi}]"
+        # most texels, not just the median, carry the requested tone
+        assert np.mean((ita > lo) & (ita <= hi)) > 0.6
+        assert abs(med - body.meta["ita"]) < 4.0
+        medians.append(med)
+    assert all(a > b for a, b in zip(medians, medians[1:])), medians
+
+
+def test_explicit_ita_wins_and_must_agree(cache):
+    body = make_body(seed=5, ita=-40.0, texture_size=128, cache_dir=cache)
+    assert body.meta["ita"] == -40.0 and body.meta["fitzpatrick"] == 6
+    with pytest.raises(ValueError):
+        make_body(seed=5, ita=-40.0, fitzpatrick=2, texture_size=128, cache_dir=cache)
+
+
+# ---- non-skin ---------------------------------------------------------------------------
+def test_nonskin_mask_covers_clothing(tone_bodies):
+    for f, body in tone_bodies.items():
+        m = body.mesh
+        cov = _covered(m, m.texture.shape[0])
+        lab = _lab(m.texture)
+        blue = cov & (lab[..., 2] < -20)                   # the royal-blue garment
+        skin = cov & (body.nonskin == 0)
+        assert blue.mean() > 0.03, f"type {f}: no garment painted"
+        assert body.nonskin[blue].mean() > 0.97
+        # no garment colour on skin, and skin and garment differ in colour
+        assert (lab[skin][:, 2] < -10).mean() < 0.002
+        assert lab[skin][:, 2].mean() - lab[blue][:, 2].mean() > 30
+
+
+def test_nonskin_mask_covers_hair_and_eyes(tone_bodies, default_body):
+    bodies = list(tone_bodies.values()) + [default_body[0]]
+    with_hair = [b for b in bodies if b.meta["look"]["hair"] != "none"]
+    assert with_hair
+    for body in bodies:
+        m, size = body.mesh, body.mesh.texture.shape[0]
+        vid, row, col = _vertex_texels(m, size)
+        ns = body.nonskin[row, col]
+        v = m.vertices[vid]
+        lab = body.anatomy[vid]
+        # eyeballs: the two small separate mesh pieces; they are non-skin
+        n_comp, comp = connected_components(_components(len(m.vertices), m.faces), directed=False)
+        sizes = np.bincount(comp)
+        eyes = np.flatnonzero(sizes < 100)
+        assert len(eyes) == 2
+        for e in eyes:
+            corners = np.isin(vid, np.flatnonzero(comp == e))
+            assert ns[corners].mean() > 0.9
+        eye = m.vertices[np.isin(comp, eyes)].mean(0)
+        # back of the scalp: above the eyes, well behind them
+        crown = (lab == 1) & (v[:, 1] > eye[1] + 0.03) & (v[:, 2] < eye[2] - 0.1)
+        if body.meta["look"]["hair"] != "none":
+            assert ns[crown].mean() > 0.95
+        else:
+            assert ns[crown].mean() < 0.05
+        # the cheeks (outer surface: facing forward, not the mouth's inside) are skin
+        cheeks = (lab == 1) & (v[:, 2] > eye[2] - 0.02) & (v[:, 1] < eye[1] - 0.035) \
+            & (v[:, 1] > eye[1] - 0.06) & (np.abs(v[:, 0] - eye[0]) > 0.03) \
+            & (m.vertex_normals[vid][:, 2] > 0.5)
+        assert cheeks.sum() > 20 and ns[cheeks].mean() < 0.1
+
+
+def test_nevi_are_small_dark_skin_spots(cache):
+    body = make_body(seed=7, texture_size=1024, cache_dir=cache, clothing="none")
+    m = body.mesh
+    assert 1 <= len(body.nevi) <= 20
+    L = _lab(m.texture)[..., 0]
+    skin_L = np.median(L[body.nonskin == 0])
+    for x0, y0, x1, y1 in body.nevi:
+        assert 0 <= x0 < x1 <= 1024 and 0 <= y0 < y1 <= 1024
+        assert (x1 - x0) <= 16 and (y1 - y0) <= 16
+        assert body.nonskin[y0:y1, x0:x1].max() == 0
+        assert L[y0:y1, x0:x1].min() < skin_L - 8
+        assert m.textures["features"][y0:y1, x0:x1].any()
+
+
+# ---- cache ----------------------------------------------------------------------------
+def test_second_call_is_cached_and_identical(default_body, cache):
+    first, _ = default_body
+    t0 = time.perf_counter()
+    again = make_body(seed=0, pose="a-pose", texture_size=SIZE, cache_dir=cache)
+    elapsed = time.perf_counter() - t0
+    assert elapsed < 2.0, f"cached make_body took {elapsed:.2f} s"
+    for name in ("vertices", "faces", "uvs", "face_uvs", "texture", "vertex_labels"):
+        a, b = getattr(first.mesh, name), getattr(again.mesh, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
+    assert np.array_equal(first.nonskin, again.nonskin)
+    assert np.array_equal(first.anatomy, again.anatomy)
+    assert first.nevi == again.nevi and first.meta == again.meta
+    files = list((cache / "bodies").glob("*.npz"))
+    assert files and not list((cache / "bodies").glob(".tmp-*"))
+
+
+def test_texture_layout(default_body):
+    body, _ = default_body
+    m = body.mesh
+    assert m.texture.shape == (SIZE, SIZE, 3) and m.texture.dtype == np.uint8
+    assert body.nonskin.shape == (SIZE, SIZE) and body.nonskin.dtype == np.uint8
+    assert set(np.unique(body.nonskin)) <= {0, 1}
+    assert m.textures["nonskin"] is body.nonskin
+    # padded: no black background left between UV islands
+    assert (m.texture.sum(-1) == 0).mean() < 0.001

@@ -1,0 +1,327 @@
+"""Lesion sources (Fitzpatrick17k folders, ISIC / PH2 / images+masks pairs, procedural)
+and the colour helpers they use."""
+import logging
+import math
+
+import cv2
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from glsynth.assets.colour import (fitzpatrick_from_ita, ita_degrees, ita_range, lab_to_srgb,
+                                   shades_of_gray, srgb_to_lab)
+from glsynth.assets.lesions import (KINDS, EmptyMaskError, Lesion, LesionError, crop_box,
+                                    load_lesion, load_lesions, procedural_lesions)
+
+H, W = 60, 80
+
+
+def _photo(seed=0, h=H, w=W):
+    rng = np.random.default_rng(seed)
+    img = np.empty((h, w, 3), np.uint8)
+    img[:] = (200, 150, 120)
+    return np.clip(img + rng.integers(-20, 20, (h, w, 3)), 0, 255).astype(np.uint8)
+
+
+def _rect(y0, y1, x0, x1, h=H, w=W):
+    m = np.zeros((h, w), bool)
+    m[y0:y1, x0:x1] = True
+    return m
+
+
+def _write(path, img):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR if img.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
+    assert cv2.imwrite(str(path), img)
+    return path
+
+
+def _rgba_white(mask):
+    """DermSynth3D-style RGBA mask: RGB 0/255, alpha opaque."""
+    m = np.zeros(mask.shape + (4,), np.uint8)
+    m[mask, :3] = 255
+    m[..., 3] = 255
+    return m
+
+
+def _rgba_alpha(mask):
+    """RGBA mask that carries the label in the alpha channel only."""
+    m = np.zeros(mask.shape + (4,), np.uint8)
+    m[..., 3] = mask * 255
+    return m
+
+
+@pytest.fixture
+def fitz(tmp_path):
+    root = tmp_path / "fitz"
+    # a1: image.jpg, RGBA masks, selected lesion is one of two lesions.
+    lesions = _rect(10, 20, 10, 30) | _rect(30, 50, 40, 60)
+    _write(root / "a1" / "image.jpg", _photo(1))
+    _write(root / "a1" / "lesions.png", _rgba_white(lesions))
+    _write(root / "a1" / "selected_lesion.png", _rgba_white(_rect(30, 50, 40, 60)))
+    _write(root / "a1" / "nonskin.png", _rgba_alpha(_rect(0, 5, 0, W)))
+    # b2: <id>.png image, grey masks, empty selected lesion -> falls back to lesions.png.
+    _write(root / "b2" / "b2.png", _photo(2))
+    _write(root / "b2" / "lesions.png", (_rect(20, 40, 20, 40) * 255).astype(np.uint8))
+    _write(root / "b2" / "selected_lesion.png", np.zeros((H, W), np.uint8))
+    _write(root / "b2" / "nonskin.png", np.zeros((H, W), np.uint8))
+    # c3: masks but no image -> skipped.
+    _write(root / "c3" / "lesions.png", (_rect(20, 40, 20, 40) * 255).astype(np.uint8))
+    (root / "meta.csv").write_text(
+        "name,label,three_partition_label,nine_partition_label,fitzpatrick,url\n"
+        "a1.jpg,psoriasis,non-neoplastic,inflammatory,3,http://x/a1\n"
+        "b2,melanoma,malignant,malignant melanoma,-1,http://x/b2\n")
+    return root
+
+
+def test_fitz17k_layout(fitz, caplog):
+    caplog.set_level(logging.WARNING)
+    ls = load_lesions(fitz, layout="fitz17k")
+    assert len(ls) == 2 and ls.ids == ["a1", "b2"]
+    assert ls.skipped == {"folders without an image": 1}
+    assert any("skipped 1 folders without an image" in r.getMessage() for r in caplog.records)
+
+    a1, b2 = ls[0], ls[1]
+    # selected_lesion.png wins over lesions.png; crop = bbox + 25% margin.
+    assert a1.meta["mask_path"].endswith("selected_lesion.png")
+    assert a1.meta["crop"] == (35, 25, 65, 55)
+    assert a1.image.shape == (30, 30, 3) and a1.image.dtype == np.uint8
+    assert a1.mask.sum() == 20 * 20 and a1.mask[5:25, 5:25].all()
+    # empty selected lesion: fall back to lesions.png
+    assert b2.meta["mask_path"].endswith("lesions.png") and b2.mask.sum() == 400
+    # CSV rows matched with and without extension; Fitzpatrick -1 means unknown.
+    assert a1.meta["label"] == "psoriasis" and a1.meta["fitzpatrick"] == 3
+    assert b2.meta["label"] == "melanoma" and b2.meta["fitzpatrick"] is None
+    # Full-image ground truth is available for evaluation.
+    assert a1.lesions_mask.shape == (H, W) and a1.lesions_mask.sum() == 200 + 400
+    np.testing.assert_array_equal(a1.nonskin_mask, _rect(0, 5, 0, W))
+    assert a1.full_image().shape == (H, W, 3)
+    # Lazy loading gives the same lesions.
+    lazy = load_lesions(fitz, layout="fitz17k", lazy=True)
+    assert len(lazy) == 2
+    np.testing.assert_array_equal(lazy[1].image, b2.image)
+
+
+def test_fitz17k_annotator_subfolders_and_image_dir(tmp_path):
+    root, images = tmp_path / "ann", tmp_path / "images"
+    _write(root / "annotator1" / "x9" / "lesions.png", (_rect(20, 30, 20, 30) * 255).astype(np.uint8))
+    _write(images / "x9.jpg", _photo(3))
+    ls = load_lesions(root, image_dir=images)
+    assert ls.ids == ["x9"] and ls[0].mask.sum() == 100
+    # The same image annotated by a second annotator gets a distinct id.
+    _write(root / "annotator2" / "x9" / "lesions.png", (_rect(20, 40, 20, 30) * 255).astype(np.uint8))
+    ls = load_lesions(root, image_dir=images)
+    assert ls.ids == ["annotator1/x9", "annotator2/x9"] and ls[1].mask.sum() == 200
+
+
+def test_fitz17k_image_of_any_name(tmp_path):
+    _write(tmp_path / "z1" / "photo.jpeg", _photo(4))
+    _write(tmp_path / "z1" / "lesions.png", (_rect(20, 30, 20, 30) * 255).astype(np.uint8))
+    assert load_lesions(tmp_path)[0].meta["image_path"].endswith("photo.jpeg")
+
+
+def test_colour_constancy_flag(fitz):
+    plain = load_lesions(fitz)[0]
+    cc = load_lesions(fitz, colour_constancy=True)[0]
+    x0, y0, x1, y1 = cc.meta["crop"]
+    np.testing.assert_array_equal(cc.image, shades_of_gray(plain.full_image())[y0:y1, x0:x1])
+    assert not np.array_equal(cc.image, plain.image)
+
+
+@pytest.fixture
+def pairs(tmp_path):
+    root = tmp_path / "pairs"
+    m = (_rect(15, 45, 20, 60) * 255).astype(np.uint8)
+    # ISIC 2018: images and ground truth in sibling folders; superpixels are ignored.
+    _write(root / "isic" / "ISIC2018_Task1-2_Training_Input" / "ISIC_0000001.jpg", _photo(4))
+    _write(root / "isic" / "ISIC2018_Task1-2_Training_Input" / "ISIC_0000001_superpixels.png", _photo(5))
+    _write(root / "isic" / "ISIC2018_Task1_Training_GroundTruth" / "ISIC_0000001_segmentation.png", m)
+    # PH2
+    _write(root / "ph2" / "IMD002" / "IMD002_Dermoscopic_Image" / "IMD002.bmp", _photo(6))
+    _write(root / "ph2" / "IMD002" / "IMD002_lesion" / "IMD002_lesion.bmp", m)
+    _write(root / "ph2" / "IMD002" / "IMD002_roi" / "IMD002_R1_Label4.bmp", m)
+    # images/ + masks/ with and without a suffix, one image without mask.
+    _write(root / "gen" / "images" / "x01.png", _photo(7))
+    _write(root / "gen" / "masks" / "x01_mask.png", m)
+    _write(root / "gen" / "images" / "x02.jpg", _photo(8))
+    _write(root / "gen" / "masks" / "x02.png", _rgba_alpha(m > 0))
+    _write(root / "gen" / "images" / "x03.jpg", _photo(9))
+    return root
+
+
+def test_pairs_layouts(pairs):
+    ls = load_lesions(pairs, layout="pairs")
+    assert sorted(ls.ids) == ["IMD002", "ISIC_0000001", "x01", "x02"]
+    assert ls.skipped == {"images without a mask": 1}
+    for les in ls:
+        assert les.mask.sum() == 30 * 40 and les.image.shape == (46, 60, 3)  # margins 8 and 10 px
+    assert load_lesions(pairs / "isic", layout="pairs").ids == ["ISIC_0000001"]
+    ph2 = load_lesions(pairs / "ph2", layout="pairs")[0]
+    assert ph2.meta["mask_path"].endswith("IMD002_lesion.bmp")
+
+
+def test_unreadable_image(fitz):
+    (fitz / "a1" / "image.jpg").write_bytes(b"not a jpeg")
+    with pytest.raises(LesionError, match=r"a1.image\.jpg.*not a readable image"):
+        load_lesions(fitz)
+    with pytest.raises(LesionError, match="image.jpg"):
+        load_lesions(fitz, lazy=True)[0]
+
+
+def test_mask_size_mismatch(tmp_path):
+    img = _write(tmp_path / "i.png", _photo())
+    mask = _write(tmp_path / "m.png", np.full((H, W + 1), 255, np.uint8))
+    with pytest.raises(LesionError, match=r"m\.png: mask size 81x60 differs from image .*i\.png size 80x60"):
+        load_lesion(img, mask)
+
+
+def test_empty_masks(fitz):
+    img = fitz / "a1" / "image.jpg"
+    empty = _write(fitz / "empty.png", np.zeros((H, W), np.uint8))
+    with pytest.raises(EmptyMaskError, match="empty.png: mask is empty"):
+        load_lesion(img, empty)
+    # b2 with both masks empty is skipped from the set; with all empty nothing is usable.
+    _write(fitz / "b2" / "lesions.png", np.zeros((H, W), np.uint8))
+    ls = load_lesions(fitz)
+    assert ls.ids == ["a1"] and ls.skipped["with empty lesion masks"] == 1
+    with pytest.raises(LesionError, match="empty"):
+        load_lesions(fitz, lazy=True)[1]
+    for name in ("lesions.png", "selected_lesion.png"):
+        _write(fitz / "a1" / name, np.zeros((H, W), np.uint8))
+    with pytest.raises(LesionError, match=r"no usable lesions .*2 with empty lesion masks"):
+        load_lesions(fitz)
+
+
+def test_zero_usable_lesions(tmp_path):
+    for name in ("p", "q"):
+        _write(tmp_path / "src" / name / "lesions.png", np.full((H, W), 255, np.uint8))
+    with pytest.raises(LesionError, match=r"src: no usable lesions .*2 folders without an image"):
+        load_lesions(tmp_path / "src")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(LesionError, match="empty: no usable lesions"):
+        load_lesions(tmp_path / "empty", layout="pairs")
+    with pytest.raises(LesionError, match="not found"):
+        load_lesions(tmp_path / "missing")
+    with pytest.raises(LesionError, match="unknown lesion layout"):
+        load_lesions(tmp_path / "src", layout="isic")
+
+
+def test_border_warning(tmp_path, caplog):
+    img = _write(tmp_path / "i.png", _photo())
+    mask = _write(tmp_path / "m.png", (_rect(0, 20, 10, 30) * 255).astype(np.uint8))
+    with caplog.at_level(logging.WARNING):
+        les = load_lesion(img, mask)
+    assert any("touches the image border" in r.getMessage() for r in caplog.records)
+    assert les.meta["crop"] == (5, 0, 35, 25)
+    caplog.clear()
+    load_lesion(img, _write(tmp_path / "m2.png", (_rect(5, 20, 10, 30) * 255).astype(np.uint8)))
+    assert not caplog.records
+
+
+def test_lesion_checks_dtype_and_shape():
+    with pytest.raises(LesionError, match="uint8"):
+        Lesion(np.zeros((4, 4, 3), np.float32), np.ones((4, 4), bool), "f")
+    with pytest.raises(LesionError, match="mask must be bool"):
+        Lesion(np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.uint8), "m")
+    with pytest.raises(LesionError, match="mask must be bool"):
+        Lesion(np.zeros((4, 4, 3), np.uint8), np.ones((4, 5), bool), "s")
+
+
+def test_crop_box_clamps():
+    assert crop_box(_rect(0, 8, 76, 80)) == (74, 0, 80, 10)
+
+
+# --- procedural -------------------------------------------------------------------------
+
+def test_procedural_deterministic():
+    a = procedural_lesions(4, seed=3, size=96)
+    b = procedural_lesions(6, seed=3, size=96)[:4]  # lesion i depends only on (seed, i)
+    c = procedural_lesions(4, seed=4, size=96)
+    for x, y, z in zip(a, b, c):
+        np.testing.assert_array_equal(x.image, y.image)
+        np.testing.assert_array_equal(x.mask, y.mask)
+        assert x.meta == y.meta and x.id == y.id
+        assert not np.array_equal(x.image, z.image)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_procedural_kind(kind):
+    for les in procedural_lesions(3, seed=11, size=128, kinds=[kind]):
+        assert les.image.shape == (128, 128, 3) and les.image.dtype == np.uint8
+        assert les.meta["kind"] == kind and les.meta["seed"] == 11 and "params" in les.meta
+        m = les.mask
+        assert ndimage.label(m)[1] == 1, "mask must be one connected region"
+        assert np.array_equal(ndimage.binary_fill_holes(m), m), "mask must have no holes"
+        assert not (m[0].any() or m[-1].any() or m[:, 0].any() or m[:, -1].any())
+        assert 0.03 < m.mean() < 0.6
+        # The condition is visible: inside differs from the surrounding skin (Delta E).
+        lab = srgb_to_lab(les.image)
+        ring = ndimage.binary_dilation(m, iterations=12) & ~ndimage.binary_dilation(m, iterations=4)
+        core = ndimage.binary_erosion(m, iterations=3)
+        assert np.linalg.norm(lab[core].mean(0) - lab[ring].mean(0)) > 4
+
+
+@pytest.mark.parametrize("fitz", [1, 3, 6])
+def test_procedural_skin_tone_matches_fitzpatrick(fitz):
+    for les in procedural_lesions(3, seed=5, size=96, kinds=["nevus"], fitzpatrick=fitz):
+        assert les.meta["fitzpatrick"] == fitz
+        L, _, b = les.meta["skin_lab"]
+        assert fitzpatrick_from_ita(math.degrees(math.atan2(L - 50, b))) == fitz
+        far = ~ndimage.binary_dilation(les.mask, iterations=10)
+        skin_ita = np.median(ita_degrees(les.image[far]))
+        assert abs(skin_ita - math.degrees(math.atan2(L - 50, b))) < 6
+
+
+def test_procedural_bad_arguments():
+    with pytest.raises(ValueError, match="kinds"):
+        procedural_lesions(1, kinds=["wart"])
+    with pytest.raises(ValueError, match="Fitzpatrick"):
+        procedural_lesions(1, fitzpatrick=7)
+
+
+# --- colour ----------------------------------------------------------------------------
+
+def test_shades_of_gray_equalises_minkowski_means():
+    rng = np.random.default_rng(0)
+    img = np.clip(rng.normal((150, 110, 70), 25, (64, 64, 3)), 0, 255).astype(np.uint8)
+    for p in (1, 6):
+        out = shades_of_gray(img, p=p).astype(np.float64)
+        e = np.mean(out ** p, axis=(0, 1)) ** (1 / p)
+        assert np.ptp(e) / e.mean() < 0.01, e
+    before = np.mean(img.astype(float) ** 6, axis=(0, 1)) ** (1 / 6)
+    assert np.ptp(before) / before.mean() > 0.3  # the test image really has a cast
+    with pytest.raises(ValueError):
+        shades_of_gray(img.astype(np.float32))
+
+
+def test_lab_and_ita_known_colours():
+    # Published CIELAB (D65) values of the sRGB primaries, white and black.
+    rgb = np.array([[255, 0, 0], [0, 0, 255], [255, 255, 255], [0, 0, 0]], np.uint8)
+    ref = np.array([[53.2408, 80.0925, 67.2032], [32.2970, 79.1875, -107.8602],
+                    [100, 0, 0], [0, 0, 0]])
+    np.testing.assert_allclose(srgb_to_lab(rgb), ref, atol=2e-3)
+    np.testing.assert_allclose(ita_degrees(rgb[:3]),
+                               [math.degrees(math.atan2(3.2408, 67.2032)),
+                                math.degrees(math.atan2(-17.703, -107.8602)), 90.0], atol=1e-2)
+    # Skin-like colours built from Lab with a chosen ITA come back with that ITA.
+    for ita in (60.0, 45.0, 20.0, -10.0, -45.0):
+        lab = [50 + 25 * math.sin(math.radians(ita)), 12, 25 * math.cos(math.radians(ita))]
+        rgb8 = np.rint(lab_to_srgb(lab) * 255).astype(np.uint8)
+        assert abs(float(ita_degrees(rgb8)) - ita) < 1.0
+    # Agrees with OpenCV's float conversion on random colours.
+    x = np.random.default_rng(1).integers(0, 256, (200, 3)).astype(np.uint8)
+    cv = cv2.cvtColor(x[None].astype(np.float32) / 255, cv2.COLOR_RGB2LAB)[0]
+    np.testing.assert_allclose(srgb_to_lab(x), cv, atol=0.5)
+
+
+def test_fitzpatrick_bands():
+    ita = [70, 55.1, 55, 41.1, 41, 28.1, 28, 10.1, 10, -29.9, -30, -60]
+    assert fitzpatrick_from_ita(ita).tolist() == [1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6, 6]
+    assert fitzpatrick_from_ita(30.0) == 3
+    for t in range(1, 7):
+        lo, hi = ita_range(t)
+        assert fitzpatrick_from_ita((lo + hi) / 2) == t
+    assert ita_range(2) == (41.0, 55.0)
+    with pytest.raises(ValueError):
+        ita_range(0)
