@@ -16,7 +16,7 @@ import glsynth as gs
 from glsynth.config import ConfigError, load_config
 from glsynth.io.images import read_image, read_rgb
 
-SMALL = ["bodies.count=1", "bodies.texture_size=512", "lesions.per_body=2", "blend.steps=4",
+SMALL = ["bodies.count=1", "bodies.texture_size=512", "lesions.per_body=2", "blend.method=deep", "blend.steps=4",
          "blend.features=filters", "views.per_body=4", "views.size=128", "views.supersample=1",
          "paste.view_size=256", "backgrounds.count=3", "seed=7"]
 

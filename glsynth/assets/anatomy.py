@@ -3,7 +3,10 @@
 Each vertex gets the part whose bones carry the largest *summed* skinning weight on it
 (summing per part, not taking the single heaviest bone, keeps a vertex shared by
 ``upperarm01`` and ``upperarm02`` on the upper arm rather than letting a third bone win).
-Small islands that this leaves (a few vertices of one part inside another) are then
+The part scores are first averaged over mesh neighbours (smoother borders); the trunk
+(upper torso / lower torso / hips), where the spine bones' weights overlap widely, is cut
+by horizontal planes at the heights that best agree with the weights (rest pose of the
+average body, so labels are the same for every body). Small islands left over are
 merged into the surrounding part, so every part is one connected region of the body
 surface. Separate mesh pieces (eyeballs, tongue) keep their own label (head).
 

@@ -124,15 +124,14 @@ def load_mesh_body(path, nonskin=None, anatomy=None, scale_to_height=None,
     if made_uvs and nonskin is not None:
         raise BodyError(f"{path}: has no UVs, so the non-skin mask {os.fspath(nonskin)} "
                         "cannot refer to its texture")
+    labels = None if anatomy is None else read_anatomy(anatomy, len(mesh.vertices))
+    scale = 1.0 if scale_to_height is None else _height_scale(mesh, float(scale_to_height), path)
     mesh = ensure_uvs(mesh, texture_size)
-    scale = 1.0
-    if scale_to_height is not None:
-        scale = _height_scale(mesh, float(scale_to_height), path)
+    if scale != 1.0:
         mesh = mesh.copy_with(vertices=mesh.vertices * scale)
     tex_hw = mesh.texture.shape[:2]
     nonskin_map = (np.zeros(tex_hw, np.uint8) if nonskin is None
                    else read_nonskin(nonskin, tex_hw))
-    labels = None if anatomy is None else read_anatomy(anatomy, len(mesh.vertices))
     mesh = mesh.copy_with(textures={**mesh.textures, "nonskin": nonskin_map},
                           vertex_labels=labels)
     meta = {"source": "mesh", "id": os.path.splitext(os.path.basename(path))[0],

@@ -56,7 +56,7 @@ TOPS = ("sports-top", "none")
 def sample_ita(fitzpatrick: int, rng: np.random.Generator) -> float:
     """An ITA angle inside the band of a Fitzpatrick type, away from its borders."""
     lo, hi = ita_range(fitzpatrick)
-    lo, hi = max(lo, -60.0), min(hi, 70.0)
+    lo, hi = max(lo, -70.0), min(hi, 70.0)
     margin = 0.25 * (hi - lo)
     return float(rng.uniform(lo + margin, hi - margin))
 

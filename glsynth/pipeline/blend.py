@@ -249,13 +249,18 @@ def poisson_blend(renderer, mesh, pasted: PastedTextures, texels, s: BlendSettin
         ty = (1 - uv[..., 1]) * T.shape[0] - 0.5
         src = sample_bilinear(Td, tx.ravel(), ty.ravel()).reshape(uv.shape[:2] + (3,))
         dst = sample_bilinear(T, tx.ravel(), ty.ravel()).reshape(uv.shape[:2] + (3,))
-        src, dst = src * fg[..., None], dst * fg[..., None]
-        f = solve_poisson(src, dst, inside)
+        # Solved on log albedo: pigment scales reflectance, so a lesion keeps its
+        # contrast *ratio* to the skin around it when the body's skin is lighter or
+        # darker than the photo's (in linear values a dark nevus on dark skin would
+        # turn pale grey on light skin).
+        eps = 1.0 / 255
+        log_f = solve_poisson(np.log(src + eps), np.log(dst + eps), inside, clip=False)
+        f = np.clip(np.exp(log_f) - eps, 0, 1) * fg[..., None]
         _pull_back(out_tex, texels, pasted.instances == p.instance, cam, out, f)
     return out_tex
 
 
-def solve_poisson(src, dst, inside):
+def solve_poisson(src, dst, inside, clip=True):
     """f = dst outside ``inside``; inside, Laplacian(f) = Laplacian(src) (Perez et al.
     2003), solved exactly by sparse LU. src, dst: (H, W, C) float; inside: bool."""
     h, w = inside.shape
@@ -278,7 +283,7 @@ def solve_poisson(src, dst, inside):
     solution = spla.splu(a).solve(rhs)
     f = dst.copy()
     f[ys, xs] = solution
-    return np.clip(f, 0, 1)
+    return np.clip(f, 0, 1) if clip else f
 
 
 def _pull_back(texture, texels, lesion_texels, cam, out, view_img):
