@@ -22,7 +22,7 @@ def _add_config_args(p, out=True):
 def cmd_generate(args):
     from .pipeline import generate
     cfg = _config(args)
-    manifest = generate(cfg, args.out, resume=args.resume)
+    manifest = generate(cfg, args.out, resume=args.resume, workers=args.workers)
     c = manifest["counts"]
     print(f"{c['images']} images, {c['lesion_annotations']} lesion annotations in {args.out} "
           f"({manifest['timings_seconds']['total']:.1f} s)")
@@ -58,6 +58,8 @@ def main(argv=None):
     p = sub.add_parser("generate", help="run the whole pipeline into a dataset folder")
     _add_config_args(p)
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes, each with its own GL context (default 1)")
     p.set_defaults(fn=cmd_generate)
     for name, text in (("paste", "select locations and paste lesions into body textures"),
                        ("blend", "blend pasted lesions (needs paste)"),

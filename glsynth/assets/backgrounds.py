@@ -51,8 +51,16 @@ class _Backgrounds(Sequence):
         return self._image(range(len(self))[i])
 
     def get(self, i: int, width: int, height: int) -> np.ndarray:
-        """Image i resized to cover width x height and centre-cropped (uint8 RGB)."""
-        return fit_cover(self[i], width, height)
+        """Image i resized to cover width x height and centre-cropped (uint8 RGB).
+        The last 32 results are kept: views reuse a few backgrounds many times, and
+        making a procedural room or decoding a photo costs more than a render."""
+        cache = self.__dict__.setdefault("_fitted", {})
+        key = (int(i), int(width), int(height))
+        if key not in cache:
+            if len(cache) >= 32:
+                cache.pop(next(iter(cache)))
+            cache[key] = fit_cover(self[i], width, height)
+        return cache[key]
 
 
 class FolderBackgrounds(_Backgrounds):

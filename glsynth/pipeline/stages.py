@@ -111,7 +111,8 @@ class BlendLesions(_Stage):
         cfg, b = self.cfg, self.cfg.blend
         settings = BlendSettings(b.method, b.steps, b.lr, b.optimizer, b.content, b.style, b.gradient,
                                  b.tv, b.pad, b.perturb_deg, b.perturb_w)
-        extractor, self.feature_description = None, "none"
+        extractor = getattr(self, "_extractor", None)
+        self.feature_description = getattr(self, "feature_description", "none")
         for body_id in tqdm(self.body_ids, desc=f"blend ({b.method})", unit="body"):
             folder = self.body_dir(body_id)
             if not PastedTextures.exists(folder) or os.path.isfile(os.path.join(folder, "blended.png")):
@@ -130,6 +131,7 @@ class BlendLesions(_Stage):
                 if settings.needs_features and extractor is None:
                     from .features import make_extractor
                     extractor, self.feature_description = make_extractor(b.features, b.vgg_weights)
+                    self._extractor = extractor
                 blender = DeepBlender(renderer, body.mesh, pasted, settings, extractor)
                 for p in tqdm(pasted.placements, desc=f"{body_id} lesions", unit="lesion", leave=False):
                     losses = blender.blend(p, rng_for(cfg.seed, "blend", body_id, p.instance),
@@ -148,36 +150,44 @@ class BlendLesions(_Stage):
 class Generate2DViews(_Stage):
     """Render ``views.per_body`` annotated views per body and write the dataset."""
 
-    def synthesize_views(self):
-        cfg, v = self.cfg, self.cfg.views
-        backgrounds = None
-        total = len(self.body_ids) * v.per_body
-        bar = tqdm(total=total, desc="views", unit="img")
+    def synthesize_views(self, tasks=None, progress=True):
+        """Render the (body id, view index) ``tasks`` (default: all of this run's) that
+        are not written yet; returns {rejection reason: count}."""
+        v = self.cfg.views
+        if tasks is None:
+            tasks = [(b, j) for b in self.body_ids for j in range(v.per_body)]
+        todo = [(b, j) for b, j in tasks if not sample_done(self.out, f"{b}_{j:04d}")]
+        bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc="views", unit="img",
+                   disable=not progress)
         rejected = {}
-        for body_id in self.body_ids:
-            todo = [j for j in range(v.per_body) if not sample_done(self.out, f"{body_id}_{j:04d}")]
-            bar.update(v.per_body - len(todo))
-            if not todo:
-                continue
-            backgrounds = backgrounds if backgrounds is not None else background_source(cfg)
+        for body_id, j in todo:
+            state = self._body_state(body_id)
             t0 = time.perf_counter()
-            body = load_body(cfg, body_id)
-            textured, instances, placements = self._textures(body_id, body)
-            mesh_b = body.mesh.copy_with(texture=textured)
-            renderer = self.renderer
-            lesion_points = self._lesion_points(renderer, body, instances, placements)
-            nevi_map = V.nevi_label_map(body)
-            self._time("load_body", time.perf_counter() - t0)
-            for j in todo:
-                t0 = time.perf_counter()
-                self._one_view(renderer, body_id, body, mesh_b, instances, nevi_map, placements,
-                               lesion_points, backgrounds, j, rejected)
-                self._time("views", time.perf_counter() - t0)
-                bar.update(1)
+            self._one_view(self.renderer, body_id, *state, j, rejected)
+            self._time("views", time.perf_counter() - t0)
+            bar.update(1)
         bar.close()
         if rejected:
             log.info("rejected views: %s", ", ".join(f"{n}x {r}" for r, n in sorted(rejected.items())))
         return rejected
+
+    def _body_state(self, body_id):
+        """Everything views of one body share; the last body's is kept."""
+        cached = getattr(self, "_state", None)
+        if cached is not None and cached[0] == body_id:
+            return cached[1]
+        t0 = time.perf_counter()
+        if getattr(self, "_backgrounds", None) is None:
+            self._backgrounds = background_source(self.cfg)
+        body = load_body(self.cfg, body_id)
+        textured, instances, placements = self._textures(body_id, body)
+        mesh_b = body.mesh.copy_with(texture=textured)
+        lesion_points = self._lesion_points(self.renderer, body, instances, placements)
+        state = (body, mesh_b, instances, V.nevi_label_map(body), placements, lesion_points,
+                 self._backgrounds)
+        self._state = (body_id, state)
+        self._time("load_body", time.perf_counter() - t0)
+        return state
 
     def _textures(self, body_id, body):
         folder = self.body_dir(body_id)
@@ -247,40 +257,115 @@ def _jsonable(obj):
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
-def generate(cfg: Config, out, resume=False):
-    """The whole pipeline into ``out``; returns the manifest."""
+class _Worker:
+    """One process's share of a run: its own GL context, stages and loaded body."""
+
+    def __init__(self, cfg: Config, out):
+        from ..gl.renderer import Renderer
+        size = max(cfg.paste.view_size, cfg.views.size)
+        renderer = Renderer(size, size)
+        self.paste = SelectAndPaste(cfg, out, renderer=renderer, body_subset=[])
+        self.blend = BlendLesions(cfg, out, renderer=renderer, body_subset=[])
+        self.views = Generate2DViews(cfg, out, renderer=renderer, body_subset=[])
+        self.cfg = cfg
+
+    def prepare(self, body_id):
+        """Paste and blend one body (skipped when done before)."""
+        if self.cfg.lesions.per_body > 0:
+            for stage, run in ((self.paste, self.paste.paste_on_locations),
+                               (self.blend, self.blend.blend_lesions)):
+                stage.body_ids = [body_id]
+                run()
+        return self._report()
+
+    def render(self, tasks):
+        rejected = self.views.synthesize_views(tasks, progress=False)
+        return {**self._report(), "rejected": rejected, "done": len(tasks)}
+
+    def _report(self):
+        timings = {}
+        for stage in (self.paste, self.blend, self.views):
+            for k, t in stage.timings.items():
+                timings[k] = timings.get(k, 0.0) + t
+            stage.timings = {}
+        return {"timings": timings, "features": getattr(self.blend, "feature_description", "none"),
+                "gl": self.views.renderer.info}
+
+
+_PROCESS_WORKER = None
+
+
+def _worker_init(cfg_dict, out):
+    global _PROCESS_WORKER
+    from ..config import from_dict
+    logging.basicConfig(level=logging.WARNING)
+    _PROCESS_WORKER = _Worker(from_dict(cfg_dict), out)
+
+
+def _worker_prepare(body_id):
+    return _PROCESS_WORKER.prepare(body_id)
+
+
+def _worker_render(tasks):
+    return _PROCESS_WORKER.render(tasks)
+
+
+def generate(cfg: Config, out, resume=False, workers=1):
+    """The whole pipeline into ``out``; returns the manifest.
+
+    ``workers`` > 1 runs that many processes, each with its own GL context, started
+    once: bodies are pasted and blended in parallel, then views are rendered in chunks.
+    Every random choice is keyed by the task, so the files are the same for any
+    number of workers.
+    """
     out = os.fspath(out)
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
     if os.path.isdir(out) and os.listdir(out) and not resume:
-        manifest_path = os.path.join(out, "manifest.json")
-        if os.path.isfile(manifest_path) or os.path.isdir(os.path.join(out, "targets")):
+        if os.path.isfile(os.path.join(out, "manifest.json")) or os.path.isdir(os.path.join(out, "targets")):
             raise FileExistsError(f"{out}: output folder is not empty; pass --resume to continue "
                                   "the run there, or choose another folder")
     os.makedirs(out, exist_ok=True)
     if resume:
         _remove_partial_writes(out)
     t_start = time.perf_counter()
-    stage_args = dict(config=cfg, out=out)
-    paste = SelectAndPaste(**stage_args)
-    timings = {}
-    if cfg.lesions.per_body > 0:
-        paste.paste_on_locations()
-        blend = BlendLesions(**stage_args, renderer=paste._renderer)
-        blend.blend_lesions()
-        timings.update(paste.timings)
-        timings.update({k: timings.get(k, 0) + t for k, t in blend.timings.items()})
-        renderer = blend._renderer
-        features = getattr(blend, "feature_description", "none")
+    ids = body_ids(cfg)
+    tasks = [(b, j) for b in ids for j in range(cfg.views.per_body)]
+    chunk = max(1, min(8, len(tasks) // (4 * workers) or 1))
+    chunks = [tasks[i:i + chunk] for i in range(0, len(tasks), chunk)]
+    reports = []
+    if workers == 1:
+        worker = _Worker(cfg, out)
+        reports += [worker.prepare(b) for b in tqdm(ids, desc="paste + blend", unit="body")]
+        bar = tqdm(total=len(tasks), desc="views", unit="img")
+        for c in chunks:
+            reports.append(worker.render(c))
+            bar.update(len(c))
+        bar.close()
     else:
-        renderer, features = None, "none (no lesions)"
-    views = Generate2DViews(**stage_args, renderer=renderer)
-    rejected = views.synthesize_views()
-    for k, t in views.timings.items():
-        timings[k] = timings.get(k, 0) + t
+        import multiprocessing as mp
+        ctx = mp.get_context("spawn")  # GL contexts do not survive fork
+        with ctx.Pool(workers, initializer=_worker_init, initargs=(cfg.to_dict(), out)) as pool:
+            reports += list(tqdm(pool.imap_unordered(_worker_prepare, ids), total=len(ids),
+                                 desc="paste + blend", unit="body"))
+            bar = tqdm(total=len(tasks), desc="views", unit="img")
+            for r in pool.imap_unordered(_worker_render, chunks):
+                reports.append(r)
+                bar.update(r["done"])
+            bar.close()
+    timings, rejected = {}, {}
+    for r in reports:
+        for k, t in r["timings"].items():
+            timings[k] = timings.get(k, 0.0) + t
+        for k, n in r.get("rejected", {}).items():
+            rejected[k] = rejected.get(k, 0) + n
     timings["total"] = time.perf_counter() - t_start
+    features = sorted({r["features"] for r in reports if r["features"] != "none"}) or ["none"]
+    gl = reports[-1]["gl"] if reports else {}
     manifest = {"glsynth_version": __version__, "seed": cfg.seed, "config": cfg.to_dict(),
-                "gl_renderer": views.renderer.info.get("GL_RENDERER"),
-                "gl_version": views.renderer.info.get("GL_VERSION"),
-                "versions": _versions(), "blend_features": features,
+                "workers": workers, "gl_renderer": gl.get("GL_RENDERER"),
+                "gl_version": gl.get("GL_VERSION"), "versions": _versions(),
+                "blend_features": ", ".join(features),
                 "timings_seconds": {k: round(t, 3) for k, t in timings.items()},
                 "rejected_views": rejected}
     finalize(out, manifest)
