@@ -22,7 +22,8 @@ def _add_config_args(p, out=True):
 def cmd_generate(args):
     from .pipeline import generate
     cfg = _config(args)
-    manifest = generate(cfg, args.out, resume=args.resume, workers=args.workers)
+    manifest = generate(cfg, args.out, resume=args.resume, workers=args.workers,
+                        executor=args.executor, address=args.ray_address)
     c = manifest["counts"]
     print(f"{c['images']} images, {c['lesion_annotations']} lesion annotations in {args.out} "
           f"({manifest['timings_seconds']['total']:.1f} s)")
@@ -59,7 +60,9 @@ def main(argv=None):
     _add_config_args(p)
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     p.add_argument("--workers", type=int, default=1,
-                   help="processes, each with its own GL context (default 1)")
+                   help="processes (or Ray actors), each with its own GL context (default 1)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local")
+    p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local one)")
     p.set_defaults(fn=cmd_generate)
     for name, text in (("paste", "select locations and paste lesions into body textures"),
                        ("blend", "blend pasted lesions (needs paste)"),
@@ -72,6 +75,15 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="PNG to write")
     p.add_argument("-n", type=int, default=6, help="number of samples")
     p.set_defaults(fn=cmd_show)
+    # Commands that live in their own modules register themselves here.
+    for module in ("glsynth.preview", "glsynth.assets.sheets", "glsynth.train.cli"):
+        try:
+            mod = __import__(module, fromlist=["register"])
+        except ModuleNotFoundError as exc:
+            if not module.startswith(exc.name or "?"):  # a missing import inside it is a bug
+                raise
+            continue
+        mod.register(sub)
     p = sub.add_parser("info", help="print the OpenGL renderer in use")
     p.add_argument("--backend", default=None)
     p.set_defaults(fn=cmd_info)

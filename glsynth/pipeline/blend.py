@@ -170,7 +170,7 @@ class DeepBlender:
                 total, terms = self._loss(batch, local, (tx0, ty0, tx1, ty1))
                 if not torch.isfinite(total):
                     raise BlendError(f"lesion {placement.lesion_id}: non-finite blend loss at step "
-                                     f"{step} ({ {n: float(v) for n, v in terms.items()} })")
+                                     f"{step} ({ {n: float(v.detach()) for n, v in terms.items()} })")
                 total.backward()
                 if not torch.isfinite(param.grad).all():
                     raise BlendError(f"lesion {placement.lesion_id}: non-finite gradient at step {step}")

@@ -310,17 +310,23 @@ def _worker_render(tasks):
     return _PROCESS_WORKER.render(tasks)
 
 
-def generate(cfg: Config, out, resume=False, workers=1):
+EXECUTORS = ("local", "ray")
+
+
+def generate(cfg: Config, out, resume=False, workers=1, executor="local", address=None):
     """The whole pipeline into ``out``; returns the manifest.
 
     ``workers`` > 1 runs that many processes, each with its own GL context, started
     once: bodies are pasted and blended in parallel, then views are rendered in chunks.
     Every random choice is keyed by the task, so the files are the same for any
-    number of workers.
+    number of workers. ``executor="ray"`` spreads the same tasks over Ray actors
+    (``address``: an existing cluster; None starts a local one).
     """
     out = os.fspath(out)
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
     if os.path.isdir(out) and os.listdir(out) and not resume:
         if os.path.isfile(os.path.join(out, "manifest.json")) or os.path.isdir(os.path.join(out, "targets")):
             raise FileExistsError(f"{out}: output folder is not empty; pass --resume to continue "
@@ -334,7 +340,10 @@ def generate(cfg: Config, out, resume=False, workers=1):
     chunk = max(1, min(8, len(tasks) // (4 * workers) or 1))
     chunks = [tasks[i:i + chunk] for i in range(0, len(tasks), chunk)]
     reports = []
-    if workers == 1:
+    if executor == "ray":
+        from .ray_executor import run_ray
+        reports = run_ray(cfg, out, ids, chunks, workers, address)
+    elif workers == 1:
         worker = _Worker(cfg, out)
         reports += [worker.prepare(b) for b in tqdm(ids, desc="paste + blend", unit="body")]
         bar = tqdm(total=len(tasks), desc="views", unit="img")
@@ -363,7 +372,7 @@ def generate(cfg: Config, out, resume=False, workers=1):
     features = sorted({r["features"] for r in reports if r["features"] != "none"}) or ["none"]
     gl = reports[-1]["gl"] if reports else {}
     manifest = {"glsynth_version": __version__, "seed": cfg.seed, "config": cfg.to_dict(),
-                "workers": workers, "gl_renderer": gl.get("GL_RENDERER"),
+                "workers": workers, "executor": executor, "gl_renderer": gl.get("GL_RENDERER"),
                 "gl_version": gl.get("GL_VERSION"), "versions": _versions(),
                 "blend_features": ", ".join(features),
                 "timings_seconds": {k: round(t, 3) for k, t in timings.items()},

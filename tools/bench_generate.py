@@ -1,0 +1,96 @@
+"""End-to-end generation throughput and blend cost, measured in one run.
+
+    .venv/bin/python tools/bench_generate.py [--views 40] [--repeats 3] [--blend-steps 400]
+
+1. Annotated 512x512 samples per second for the default config (bodies cached, lesions
+   pasted and blended beforehand) with 1 and 2 worker processes, median of
+   ``--repeats`` runs, with the per-stage split from the manifest.
+2. Seconds per blended lesion: deep blend (paper settings, 400 steps) with the
+   weight-free filter bank, with VGG16 when weights are found locally, and Poisson.
+3. RGB-only generation against all targets (what leaving out unused passes saves).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import tempfile
+import time
+
+import glsynth as gs
+from glsynth.config import load_config
+from glsynth.pipeline.stages import generate
+
+
+def _views_run(overrides, workers, repeats, prepared):
+    """Median samples/s of the view stage over repeats (paste/blend results reused)."""
+    rates, manifest = [], None
+    for _ in range(repeats):
+        out = tempfile.mkdtemp(prefix="glsynth-bench-")
+        shutil.copytree(f"{prepared}/bodies", f"{out}/bodies")
+        cfg = load_config(None, overrides)
+        t0 = time.perf_counter()
+        manifest = generate(cfg, out, resume=True, workers=workers)
+        dt = time.perf_counter() - t0
+        rates.append(manifest["counts"]["images"] / dt)
+        shutil.rmtree(out)
+    return statistics.median(rates), manifest
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--views", type=int, default=40, help="views per body (2 bodies)")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--blend-steps", type=int, default=400)
+    args = ap.parse_args(argv)
+    base = [f"views.per_body={args.views}"]
+
+    prepared = tempfile.mkdtemp(prefix="glsynth-prep-")
+    generate(load_config(None, base + ["views.per_body=0"]), prepared)  # bodies, paste, blend
+
+    print("## Samples per second (512x512, default config, views stage incl. writing)\n")
+    print("| setting | workers | samples/s | per-stage seconds (summed over workers) |")
+    print("|---|---:|---:|---|")
+    rows = {}
+    for name, extra in (("all targets", []), ("RGB only", ["outputs=[rgb]"])):
+        for workers in (1, 2):
+            rate, man = _views_run(base + extra, workers, args.repeats, prepared)
+            rows[(name, workers)] = rate
+            split = {k: v for k, v in man["timings_seconds"].items() if k != "total"}
+            print(f"| {name} | {workers} | {rate:.2f} | {json.dumps(split)} |")
+    print(f"\nRGB-only vs all targets (1 worker): {rows[('RGB only', 1)] / rows[('all targets', 1)]:.2f}x; "
+          f"2 vs 1 workers (all targets): {rows[('all targets', 2)] / rows[('all targets', 1)]:.2f}x")
+    print(f"GL_RENDERER: {man['gl_renderer']}\n")
+
+    print(f"## Blend seconds per lesion (paper settings, {args.blend_steps} steps for deep)\n")
+    print("| method | features | seconds per lesion |\n|---|---|---:|")
+    from glsynth.pipeline.features import find_vgg_weights
+    variants = [("poisson", "-"), ("deep", "filters")]
+    if find_vgg_weights() is not None:
+        variants.append(("deep", "vgg16"))
+    for method, feats in variants:
+        out = tempfile.mkdtemp(prefix="glsynth-blend-")
+        shutil.copytree(f"{prepared}/bodies", f"{out}/bodies")
+        for b in ("body000", "body001"):
+            for f in ("blended.png", "blend.json"):
+                p = f"{out}/bodies/{b}/{f}"
+                try:
+                    import os
+                    os.unlink(p)
+                except FileNotFoundError:
+                    pass
+        cfg = load_config(None, base + [f"blend.method={method}", f"blend.steps={args.blend_steps}"] +
+                          ([f"blend.features={feats}"] if feats != "-" else []))
+        stage = gs.BlendLesions(cfg, out)
+        t0 = time.perf_counter()
+        stage.blend_lesions()
+        dt = time.perf_counter() - t0
+        n = sum(len(json.load(open(f"{out}/bodies/{b}/placements.json"))) for b in ("body000", "body001"))
+        print(f"| {method} | {feats} | {dt / max(n, 1):.2f} |")
+        shutil.rmtree(out)
+    shutil.rmtree(prepared)
+
+
+if __name__ == "__main__":
+    main()
