@@ -58,11 +58,12 @@ class TexelGeometry:
     covered: np.ndarray   # (H, W) bool
 
     @classmethod
-    def of(cls, renderer, mesh):
+    def of(cls, renderer, mesh, only=None):
+        """Geometry of every covered texel, or only of those where ``only`` (bool HxW)."""
         h, w = mesh.texture.shape[:2]
         raster = renderer.render_uv_space(mesh, w, h)
         covered = raster["face_id"] >= 0
-        rows, cols = np.nonzero(covered)
+        rows, cols = np.nonzero(covered if only is None else covered & only)
         faces = raster["face_id"][rows, cols]
         bary = raster["bary"][rows, cols].astype(np.float64)
         corners = mesh.faces[faces]

@@ -202,7 +202,7 @@ class Generate2DViews(_Stage):
     def _lesion_points(self, renderer, body, instances, placements):
         if not placements:
             return []
-        tx = TexelGeometry.of(renderer, body.mesh)
+        tx = TexelGeometry.of(renderer, body.mesh, only=instances > 0)
         ids = instances[tx.rows, tx.cols]
         return [(tx.points[ids == p.instance], tx.normals[ids == p.instance])
                 for p in placements if (ids == p.instance).any()]
