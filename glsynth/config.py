@@ -19,7 +19,9 @@ class ConfigError(ValueError):
     """A configuration file or override is invalid; the message names the key."""
 
 
-OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth")
+OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth", "normals", "uv", "face_id")
+# written unless ``outputs`` says otherwise; the extra 3D outputs are opt-in
+DEFAULT_OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth")
 BLEND_METHODS = ("deep", "poisson", "paste")
 FEATURES = ("auto", "vgg16", "filters")
 
@@ -86,6 +88,31 @@ class ViewsConfig:
     shininess: list = field(default_factory=lambda: [30.0, 60.0])
     light_offset: list = field(default_factory=lambda: [0.0, 0.5])  # light distance from camera (m)
     attempts: int = 50
+    # Richer lighting (defaults off: the paper's single light, Lambert diffuse).
+    wrap: list = field(default_factory=lambda: [0.0, 0.0])       # material wrap lighting
+    flash: float = 0.0                # probability of a flash light at the camera
+    flash_diffuse: list = field(default_factory=lambda: [0.2, 0.6])
+    flash_specular: list = field(default_factory=lambda: [0.0, 0.1])
+    ambient_tint: float = 0.0         # 0..1: tint the ambient light by the background's mean colour
+
+
+@dataclass
+class PhotoConfig:
+    """Post-render camera model (glsynth/pipeline/photo.py). Every range [0, 0] (the
+    default) switches that effect off; ``enabled: false`` switches them all off."""
+    enabled: bool = False
+    aperture: list = field(default_factory=lambda: [0.0, 0.0])    # lens aperture diameter (scene units)
+    focus_jitter: float = 0.05        # relative error of the focus distance around the look-at point
+    max_coc: float = 12.0             # cap on the circle of confusion (px, diameter)
+    motion_blur: list = field(default_factory=lambda: [0.0, 0.0])  # shake kernel length (px)
+    shot_noise: list = field(default_factory=lambda: [0.0, 0.0])   # variance per unit linear signal
+    read_noise: list = field(default_factory=lambda: [0.0, 0.0])   # std dev, linear units
+    white_balance: list = field(default_factory=lambda: [0.0, 0.0])  # log2 red/blue gain shift (+ warm)
+    tint: list = field(default_factory=lambda: [0.0, 0.0])         # log2 green gain shift
+    exposure: list = field(default_factory=lambda: [0.0, 0.0])     # EV (stops)
+    vignetting: list = field(default_factory=lambda: [0.0, 0.0])   # light fall-off at the corners
+    chromatic_aberration: list = field(default_factory=lambda: [0.0, 0.0])  # R/B shift at the corner (px)
+    jpeg_quality: list = field(default_factory=lambda: [0, 0])     # [0, 0] = no JPEG; else 1..100
 
 
 @dataclass
@@ -104,7 +131,8 @@ class Config:
     blend: BlendConfig = field(default_factory=BlendConfig)
     views: ViewsConfig = field(default_factory=ViewsConfig)
     backgrounds: BackgroundsConfig = field(default_factory=BackgroundsConfig)
-    outputs: list = field(default_factory=lambda: list(OUTPUTS))
+    photo: PhotoConfig = field(default_factory=PhotoConfig)
+    outputs: list = field(default_factory=lambda: list(DEFAULT_OUTPUTS))
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -249,6 +277,27 @@ def validate(cfg: Config, source="config"):
     _range(v.shininess, "views.shininess", source, 1e-3, 1e4)
     _range(v.light_offset, "views.light_offset", source, 0, 1e3)
     need(v.attempts >= 1, "views.attempts", v.attempts, "must be >= 1")
+    _range(v.wrap, "views.wrap", source, 0, 1)
+    need(0 <= v.flash <= 1, "views.flash", v.flash, "must be in [0, 1]")
+    _range(v.flash_diffuse, "views.flash_diffuse", source, 0, 10)
+    _range(v.flash_specular, "views.flash_specular", source, 0, 10)
+    need(0 <= v.ambient_tint <= 1, "views.ambient_tint", v.ambient_tint, "must be in [0, 1]")
+    ph = cfg.photo
+    _range(ph.aperture, "photo.aperture", source, 0, 1)
+    need(0 <= ph.focus_jitter < 1, "photo.focus_jitter", ph.focus_jitter, "must be in [0, 1)")
+    need(0 < ph.max_coc <= 64, "photo.max_coc", ph.max_coc, "must be in (0, 64]")
+    _range(ph.motion_blur, "photo.motion_blur", source, 0, 64)
+    _range(ph.shot_noise, "photo.shot_noise", source, 0, 1)
+    _range(ph.read_noise, "photo.read_noise", source, 0, 1)
+    _range(ph.white_balance, "photo.white_balance", source, -2, 2)
+    _range(ph.tint, "photo.tint", source, -2, 2)
+    _range(ph.exposure, "photo.exposure", source, -4, 4)
+    _range(ph.vignetting, "photo.vignetting", source, 0, 1)
+    _range(ph.chromatic_aberration, "photo.chromatic_aberration", source, 0, 16)
+    q = ph.jpeg_quality
+    _range(q, "photo.jpeg_quality", source, 0, 100)
+    need(all(float(x).is_integer() for x in q) and (q == [0, 0] or q[0] >= 1), "photo.jpeg_quality", q,
+         "must be [0, 0] (no JPEG) or integers in [1, 100]")
     _range(cfg.backgrounds.blur, "backgrounds.blur", source, 0, 50)
     need(cfg.backgrounds.count >= 1, "backgrounds.count", cfg.backgrounds.count, "must be >= 1")
     bad = [o for o in cfg.outputs if o not in OUTPUTS]

@@ -39,19 +39,27 @@ class PointLight:
 
 @dataclass(frozen=True)
 class Material:
-    """Phong material: specular colour and shininess exponent (paper: 0.025, 50)."""
+    """Phong material: specular colour and shininess exponent (paper: 0.025, 50), and
+    ``wrap`` for skin-like wrap lighting: the diffuse factor is
+    ``max((n.l + wrap) / (1 + wrap), 0)`` (0 = plain Lambert, the paper's shading;
+    about 0.2-0.5 imitates the light that subsurface scattering carries past the
+    terminator). The specular term stays gated by ``n.l > 0``."""
 
     specular: tuple = (0.025, 0.025, 0.025)
     shininess: float = 50.0
+    wrap: float = 0.0
 
     def __post_init__(self):
         object.__setattr__(self, "specular", _rgb(self.specular, "material specular"))
         if not (np.isfinite(self.shininess) and self.shininess > 0):
             raise ValueError(f"material shininess must be > 0, got {self.shininess}")
         object.__setattr__(self, "shininess", float(self.shininess))
+        if not (np.isfinite(self.wrap) and 0 <= self.wrap <= 1):
+            raise ValueError(f"material wrap must be in [0, 1], got {self.wrap}")
+        object.__setattr__(self, "wrap", float(self.wrap))
 
     def to_dict(self):
-        return {"specular": list(self.specular), "shininess": self.shininess}
+        return {"specular": list(self.specular), "shininess": self.shininess, "wrap": self.wrap}
 
 
 MAX_LIGHTS = 8

@@ -1,7 +1,9 @@
 #version 330 core
 // Textured Phong shading with point lights, in the same form as glsynth.diff.shade:
-//   colour = texel * sum(ambient + diffuse * max(n.l, 0)) + sum(specular * ks * max(r.v, 0)^shininess)
-// where the specular term is zero when the light is behind the surface (n.l <= 0).
+//   colour = texel * sum(ambient + diffuse * max((n.l + wrap) / (1 + wrap), 0))
+//            + sum(specular * ks * max(r.v, 0)^shininess)
+// where the specular term is zero when the light is behind the surface (n.l <= 0) and
+// wrap (material wrap lighting, 0 = Lambert) lets diffuse light reach past the terminator.
 // Colours are display-referred: lighting acts on the sRGB-encoded texture values
 // directly, as in the DermSynth3D paper's PyTorch3D renderer. Alpha is coverage.
 #define MAX_LIGHTS 8
@@ -14,6 +16,7 @@ uniform vec3 u_light_diffuse[MAX_LIGHTS];
 uniform vec3 u_light_specular[MAX_LIGHTS];
 uniform vec3 u_mat_specular;
 uniform float u_shininess;
+uniform float u_wrap;   // 0 unless set (glsynth.lighting.material_uniforms)
 
 #include "surface.glsl"
 
@@ -35,7 +38,7 @@ void main() {
         vec3 to_light = u_light_pos[i] - world;
         vec3 l = to_light / max(length(to_light), 1e-20);
         float cos_nl = dot(n, l);
-        light_sum += u_light_ambient[i] + u_light_diffuse[i] * max(cos_nl, 0.0);
+        light_sum += u_light_ambient[i] + u_light_diffuse[i] * max((cos_nl + u_wrap) / (1.0 + u_wrap), 0.0);
         if (cos_nl > 0.0) {
             vec3 r = 2.0 * cos_nl * n - l;
             float rv = max(dot(r, view_dir), 0.0);

@@ -87,7 +87,8 @@ def phong(texel, position, normal, eye, lights, material):
 
 
 def phong_terms(position, normal, eye, lights, material):
-    """The texture-independent Phong factors: ``colour = texel * light + specular``.
+    """The texture-independent Phong factors: ``colour = texel * light + specular``
+    (diffuse with the material's wrap lighting, as in ``shaders/phong.frag``).
     Useful when several textures are shaded under the same view (blending)."""
     dt, dev = position.dtype, position.device
     n = F.normalize(normal, dim=-1, eps=1e-30)
@@ -95,12 +96,15 @@ def phong_terms(position, normal, eye, lights, material):
     light_sum = torch.zeros_like(position)
     spec_sum = torch.zeros_like(position)
     ks = torch.tensor(material.specular, dtype=dt, device=dev)
+    wrap = float(getattr(material, "wrap", 0.0))
     for light in lights:
         lp = torch.tensor(light.position, dtype=dt, device=dev)
         l = F.normalize(lp - position, dim=-1, eps=1e-20)
         cos_nl = (n * l).sum(-1, keepdim=True)
+        # wrap lighting (Material.wrap, 0 = Lambert): max((n.l + wrap) / (1 + wrap), 0)
+        diffuse = ((cos_nl + wrap) / (1 + wrap)).clamp(min=0) if wrap else cos_nl.clamp(min=0)
         light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) \
-            + torch.tensor(light.diffuse, dtype=dt, device=dev) * cos_nl.clamp(min=0)
+            + torch.tensor(light.diffuse, dtype=dt, device=dev) * diffuse
         r = 2 * cos_nl * n - l
         rv = (r * view_dir).sum(-1, keepdim=True).clamp(min=0)
         spec = torch.tensor(light.specular, dtype=dt, device=dev) * ks * rv.pow(material.shininess)

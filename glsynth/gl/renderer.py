@@ -269,6 +269,7 @@ class Renderer:
             prog[key].write(np.array([getattr(l, attr) for l in lights] + pad, "f4").tobytes())
         prog["u_mat_specular"].value = material.specular
         prog["u_shininess"].value = material.shininess
+        prog["u_wrap"].value = material.wrap
         prog["u_eye"].value = tuple(camera.eye)
         gpu.texture.use(0)
         prog["u_texture"].value = 0
@@ -354,6 +355,58 @@ class Renderer:
         for fbo in self._fbos.values():
             self._release_fbo(fbo)
         self._fbos.clear()
+
+    def draw_rgb(self, mesh: Mesh, camera: Camera, lights=None, material=None, dtype="f4"):
+        """Draw the shading pass of ``render(mesh, camera, passes=("rgb",), lights=...,
+        material=...)`` (no supersampling) into a cached framebuffer and return that
+        framebuffer *without* reading it back (GL orientation: row 0 at the bottom): for
+        on-screen display, e.g. ``ctx.copy_framebuffer(ctx.screen, fbo)``.
+
+        dtype 'f4': the float32 RGBA framebuffer ``render`` uses (reused by the next
+        render of the same size); 'f1': an 8-bit RGBA framebuffer of its own (GL rounds
+        the shader's colour to 1/255 when writing it; less memory traffic, for display)."""
+        if dtype not in ("f4", "f1"):
+            raise ValueError(f"draw_rgb dtype must be 'f4' or 'f1', got {dtype!r}")
+        with self.ctx:
+            if mesh.texture is None:
+                raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
+            gpu = self._gpu_mesh(mesh)
+            if camera.near is not None and camera.far is not None:
+                near, far = camera.near, camera.far
+            else:
+                near, far = camera.clip_planes(*mesh.bounds, vertices=mesh.vertices)
+            mats = {"u_view": camera.view_matrix().T.astype("f4").tobytes(),
+                    "u_proj": camera.projection_matrix(near, far).T.astype("f4").tobytes()}
+            lights = check_lights([PointLight(camera.eye)] if lights is None else lights)
+            material = material or Material()
+            prog = self.programs["rgb"]
+            pad = [(0.0, 0.0, 0.0)] * (MAX_LIGHTS - len(lights))
+            prog["u_num_lights"].value = len(lights)
+            for key, attr in (("u_light_pos", "position"), ("u_light_ambient", "ambient"),
+                              ("u_light_diffuse", "diffuse"), ("u_light_specular", "specular")):
+                prog[key].write(np.array([getattr(l, attr) for l in lights] + pad, "f4").tobytes())
+            prog["u_mat_specular"].value = material.specular
+            prog["u_shininess"].value = material.shininess
+            prog["u_wrap"].value = material.wrap
+            prog["u_eye"].value = tuple(camera.eye)
+            gpu.texture.use(0)
+            prog["u_texture"].value = 0
+            self.ctx.enable(moderngl.DEPTH_TEST)
+            self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+            if dtype == "f4":
+                fbo = self._fbo("rgb", camera.width, camera.height)
+            else:
+                size = (camera.width, camera.height)
+                fbo = getattr(self, "_display_fbo", None)
+                if fbo is None or fbo.size != size:
+                    if fbo is not None:
+                        self._release_fbo(fbo)
+                    fbo = self.ctx.framebuffer(
+                        color_attachments=[self.ctx.renderbuffer(size, 4, dtype="f1")],
+                        depth_attachment=self.ctx.depth_renderbuffer(size))
+                    self._display_fbo = fbo
+            self._draw(gpu, "rgb", fbo, mats)
+            return fbo
 
 
 def vertex_label_image(out: dict, mesh: Mesh, vertex_labels=None) -> np.ndarray:

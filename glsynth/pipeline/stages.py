@@ -209,12 +209,22 @@ class Generate2DViews(_Stage):
 
     def _one_view(self, renderer, body_id, body, mesh_b, instances, nevi_map, placements,
                   lesion_points, backgrounds, j, rejected):
+        from . import photo
         cfg, v = self.cfg, self.cfg.views
         sid = f"{body_id}_{j:04d}"
         rng = rng_for(cfg.seed, "view", body_id, j)
+        tint, background = None, None
+        if v.ambient_tint > 0:
+            # the room's colour must be known before shading: the background is drawn
+            # first, from its own generator (the view's stream stays as it was)
+            bg_rng = rng_for(cfg.seed, "background", body_id, j)
+            bg_index = int(bg_rng.integers(len(backgrounds)))
+            blur = float(bg_rng.uniform(*cfg.backgrounds.blur))
+            background = backgrounds.get(bg_index, v.size, v.size)
+            tint = V.ambient_tint_from(background, v.ambient_tint)
         for attempt in range(1, v.attempts + 1):
             try:
-                scene = V.sample_scene(body, lesion_points, rng, v, renderer)
+                scene = V.sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=tint)
                 layers = V.render_view(renderer, body, mesh_b, instances, nevi_map, scene, v,
                                        cfg.outputs)
                 break
@@ -224,11 +234,20 @@ class Generate2DViews(_Stage):
         else:
             log.warning("%s: no acceptable view in %d attempts; skipped", sid, v.attempts)
             return
-        bg_index = int(rng.integers(len(backgrounds)))
-        blur = float(rng.uniform(*cfg.backgrounds.blur))
+        if tint is None:
+            bg_index = int(rng.integers(len(backgrounds)))
+            blur = float(rng.uniform(*cfg.backgrounds.blur))
+        cam = scene.camera
+        # camera model: its own generator, so switching it on changes no scene parameter
+        focus = float(np.linalg.norm(np.subtract(cam.target, cam.eye)))
+        photo_params = photo.sample_params(cfg.photo, rng_for(cfg.seed, "photo", body_id, j), focus,
+                                           focal_px=float(cam.intrinsics()[1, 1]))
         if "rgb" in cfg.outputs:
-            background = backgrounds.get(bg_index, v.size, v.size)
+            if background is None:
+                background = backgrounds.get(bg_index, v.size, v.size)
             layers["image"] = V.composite(layers["rgb"], layers["alpha"], background, blur)
+            # RGB only: every label layer stays the sharp geometric truth
+            layers["image"] = photo.apply(layers["image"], photo_params, layers["depth"])
         by_instance = {p.instance: p for p in placements}
         lesions = []
         for k, box in layers["boxes"].items():
@@ -237,11 +256,23 @@ class Generate2DViews(_Stage):
                             "lesion_id": p.lesion_id if p else None,
                             "source": p.lesion_meta if p else None})
         n = layers["semantic"].size
+        view = cam.view_matrix()
         meta = {"id": sid, "width": v.size, "height": v.size, "attempts": attempt,
-                "camera": {**scene.camera.to_dict(), "centre": scene.centre,
-                           "intrinsics": scene.camera.intrinsics().tolist(),
-                           "view_matrix": scene.camera.view_matrix().tolist()},
+                "camera": {**cam.to_dict(), "centre": scene.centre,
+                           "intrinsics": cam.intrinsics().tolist(),
+                           "view_matrix": view.tolist(),
+                           "world_to_camera": view.tolist(),
+                           "world_to_camera_cv": (np.diag([1.0, -1.0, -1.0, 1.0]) @ view).tolist(),
+                           "conventions": "intrinsics K: pixels, row 0 at the top, pixel centres at "
+                                          "+0.5; world_to_camera (= view_matrix): OpenGL view space "
+                                          "(x right, y up, camera looks down -z); world_to_camera_cv:"
+                                          " OpenCV camera (x right, y down, z forward), the frame "
+                                          "K projects: [u v 1] ~ K @ (world_to_camera_cv @ X)[:3]"},
                 "light": scene.light.to_dict(), "material": scene.material.to_dict(),
+                "lights": [{**l.to_dict(), "kind": kind} for l, kind in
+                           zip(scene.lights, ("room", "flash"))],
+                "ambient_tint": list(tint) if tint is not None else None,
+                "photo": photo_params,
                 "body": {"id": body_id, **_jsonable(body.meta)},
                 "lesions": lesions,
                 "nevi": [{"id": k, "box": b} for k, b in layers.get("nevi_boxes", {}).items()],

@@ -24,18 +24,26 @@ SEMANTIC_BACKGROUND, SEMANTIC_SKIN, SEMANTIC_LESION, SEMANTIC_NONSKIN = 0, 1, 2,
 @dataclass
 class ViewScene:
     camera: Camera
-    light: PointLight
+    light: PointLight        # the room light (near the camera, random direction)
     material: Material
     centre: str              # 'lesion k' or 'surface'
+    flash: PointLight | None = None   # optional flash at the camera
+
+    @property
+    def lights(self) -> list:
+        return [self.light] + ([self.flash] if self.flash is not None else [])
 
 
 class ViewRejected(Exception):
     pass
 
 
-def sample_scene(body, lesion_points, rng, v, renderer) -> ViewScene:
-    """One camera + light + material; raises ViewRejected when the camera is inside
-    the mesh or the light is blocked."""
+def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None) -> ViewScene:
+    """One camera + light(s) + material; raises ViewRejected when the camera is inside
+    the mesh or the light is blocked. ``ambient_tint`` (RGB gains, see
+    ``ambient_tint_from``) colours the room light's ambient term. Wrap lighting and the
+    flash draw random numbers only when the config turns them on, so configs without
+    them give the same scenes as before."""
     mesh = body.mesh
     if lesion_points and rng.random() < v.lesion_bias:
         k = int(rng.integers(len(lesion_points)))
@@ -64,10 +72,29 @@ def sample_scene(body, lesion_points, rng, v, renderer) -> ViewScene:
         raise ViewRejected("light blocked by the body")
     # One intensity per term for R, G and B alike: independent channels would tint the
     # skin green or purple, which no clinical photo shows.
-    light = PointLight(light_pos, ambient=rng.uniform(*v.ambient), diffuse=rng.uniform(*v.diffuse),
+    ambient = rng.uniform(*v.ambient)
+    if ambient_tint is not None:
+        ambient = ambient * np.asarray(ambient_tint, np.float64)
+    light = PointLight(light_pos, ambient=ambient, diffuse=rng.uniform(*v.diffuse),
                        specular=rng.uniform(*v.specular))
-    material = Material(specular=rng.uniform(*v.material_specular), shininess=rng.uniform(*v.shininess))
-    return ViewScene(cam, light, material, centre)
+    mat_spec, shininess = rng.uniform(*v.material_specular), rng.uniform(*v.shininess)
+    wrap = float(rng.uniform(*v.wrap)) if v.wrap[1] > 0 else 0.0
+    material = Material(specular=mat_spec, shininess=shininess, wrap=wrap)
+    flash = None
+    if v.flash > 0 and rng.random() < v.flash:
+        # a phone flash sits next to the lens: no ambient, the camera sees what it lights
+        flash = PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(*v.flash_diffuse),
+                           specular=rng.uniform(*v.flash_specular))
+    return ViewScene(cam, light, material, centre, flash)
+
+
+def ambient_tint_from(background, strength) -> tuple:
+    """RGB gains (mean 1) that tint the ambient light towards the background's average
+    colour, so the body sits in the room's light: ``1 + strength * (c / mean(c) - 1)``
+    with each ratio clipped to [0.5, 1.5]."""
+    c = np.asarray(background, np.float64).reshape(-1, 3).mean(0)
+    c = np.clip(c / max(c.mean(), 1e-6), 0.5, 1.5)
+    return tuple((1 + float(strength) * (c - 1)).tolist())
 
 
 def _sees_point(renderer, mesh, cam, point) -> bool:
@@ -90,9 +117,8 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     labels = {"instances": instances, "nonskin": body.nonskin}
     if nevi_map is not None:
         labels["nevi"] = nevi_map
-    out = renderer.render(mesh_b, scene.camera, passes=passes_for(outputs), lights=[scene.light],
-                          material=scene.material, label_textures=labels,
-                          supersample=v.supersample)
+    out = renderer.render(mesh_b, scene.camera, passes=passes_for(outputs), lights=scene.lights,
+                          material=scene.material, label_textures=labels, supersample=v.supersample)
     body_px = out["face_id"] >= 0
     lesion = body_px & (out["instances"] > 0)
     nonskin = body_px & (out["nonskin"] > 0) & ~lesion
@@ -111,9 +137,30 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
         layers["rgb"], layers["alpha"] = out["rgb"], out["alpha"]
     if body.anatomy is not None and "anatomy" in outputs:
         layers["anatomy"] = vertex_label_image(out, body.mesh, body.anatomy).astype(np.uint8)
+    if "face_id" in outputs:
+        layers["face_id"] = out["face_id"].astype(np.int32)
+    if "uv" in outputs:
+        layers["uv"] = np.where(body_px[..., None], out["uv"], -1).astype(np.float32)
+    if "normals" in outputs:
+        layers["normals"] = camera_normals(out, body.mesh, scene.camera)
     if nevi_map is not None:
         layers["nevi_boxes"] = instance_boxes(np.where(body_px & ~lesion, out["nevi"], 0))
     return layers
+
+
+def camera_normals(out, mesh, camera) -> np.ndarray:
+    """Unit surface normals (H x W x 3 float32) in the camera's view space (the frame of
+    ``Camera.view_matrix``: +x right, +y up, +z towards the camera, so visible surfaces
+    have z > 0): vertex normals interpolated with the G-buffer's barycentrics (as the
+    shading does), normalised and rotated; 0 off the body."""
+    fid = out["face_id"]
+    body_px = fid >= 0
+    corners = mesh.faces[np.where(body_px, fid, 0)]                     # H,W,3
+    n = np.einsum("hwk,hwkc->hwc", out["bary"].astype(np.float64), mesh.vertex_normals[corners])
+    n = n @ camera.view_matrix()[:3, :3].T
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = np.where(body_px[..., None] & (norm > 0), n / np.maximum(norm, 1e-30), 0)
+    return n.astype(np.float32)
 
 
 def instance_boxes(inst) -> dict:

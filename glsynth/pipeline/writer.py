@@ -29,6 +29,13 @@ def write_sample(out_dir, sample_id, layers: dict, meta: dict, outputs):
         write_png(os.path.join(tgt, f"{sample_id}_anatomy.png"), layers["anatomy"])
     if "depth" in outputs:
         write_depth(os.path.join(tgt, f"{sample_id}_depth.tiff"), layers["depth"])
+    # extra 3D outputs, as .npy (np.load reads them; no precision lost to PNG scaling)
+    if "normals" in outputs:     # float16 H x W x 3, unit camera-space normals, 0 off the body
+        write_npy(os.path.join(tgt, f"{sample_id}_normals.npy"), layers["normals"].astype(np.float16))
+    if "uv" in outputs:          # float32 H x W x 2, texture (u, v), -1 off the body
+        write_npy(os.path.join(tgt, f"{sample_id}_uv.npy"), layers["uv"].astype(np.float32))
+    if "face_id" in outputs:     # int32 H x W, mesh face index, -1 off the body
+        write_npy(os.path.join(tgt, f"{sample_id}_face_id.npy"), layers["face_id"].astype(np.int32))
     write_text(os.path.join(tgt, f"{sample_id}.json"), json.dumps(meta, indent=1, sort_keys=True))
 
 
@@ -38,6 +45,12 @@ def write_depth(path, depth):
     # zlib level 1: faster than the default level, files barely larger
     tifffile.imwrite(buf, depth.astype(np.float32), compression="zlib", compressionargs={"level": 1},
                      metadata=None)
+    write_bytes(path, buf.getvalue())
+
+
+def write_npy(path, array):
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
     write_bytes(path, buf.getvalue())
 
 

@@ -1,0 +1,246 @@
+"""A post-render camera model: what a phone camera does to the rendered scene.
+
+The renderer gives a clean, display-referred composite (body over background). Clinical
+photos taken "in the wild" add optics and sensor artefacts; this module adds them to the
+RGB image only. **Labels stay exact**: masks, instances, anatomy, depth, normals, UV and
+face ids are the sharp geometric truth of the scene; a blurred lesion edge in the image
+still has its label on the pixels the lesion covers geometrically.
+
+Order (the order light takes through a camera), each step optional:
+
+1. sRGB -> linear (only when one of the linear-space effects below is on)
+2. defocus: thin-lens circle of confusion from the depth buffer,
+   ``CoC(d) = kappa * |d - s| / (d * s)`` pixels (diameter) for a point at depth ``d``
+   when focused at ``s`` (background pixels: ``d = inf``, so ``CoC = kappa / s``);
+   ``kappa = A * f_px`` (aperture diameter ``A`` in scene units times the focal length
+   in pixels, K[1, 1]; for s >> f this is the thin lens'
+   ``A * f / (s - f) * |d - s| / d`` over the pixel pitch). Rendered as layered blur: the image is blurred with disc kernels of
+   integer radii 0, 1, 2, ... and each pixel interpolates between the two layers around
+   its own radius (radius 0 is the untouched pixel).
+3. motion blur: camera shake, a short anti-aliased line kernel of random direction
+4. chromatic aberration: red and blue scaled radially about the centre (lateral CA)
+5. vignetting: gain ``1 - v * rho^2`` (rho = 1 at the image corners)
+6. exposure: gain ``2^EV``
+7. sensor noise: shot noise (variance ``a * x``, Gaussian approximation of Poisson)
+   plus read noise (std ``b``), ``x`` in linear units, then clipped to [0, 1]
+8. white balance / colour temperature: channel gains ``R 2^(t/2)``, ``B 2^(-t/2)``,
+   ``G 2^g`` (``t`` warm/cool, ``g`` green/magenta tint)
+9. linear -> sRGB, rounded to 8 bits
+10. JPEG at the sampled quality (OpenCV encode + decode)
+
+An effect whose strength is zero is skipped entirely, so with every strength at zero the
+image is returned unchanged (bit-exact). Parameters are drawn by ``sample_params`` from
+the ``photo`` config section with the view's own generator
+(``rng_for(seed, "photo", body_id, j)``) and recorded in the per-image JSON; ``apply``
+is a pure function of the image, depth and those parameters (the noise realisation comes
+from the recorded ``seed``), so a recorded sample can be reproduced exactly.
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+LINEAR_EFFECTS = ("defocus", "motion_blur", "chromatic_aberration", "vignetting", "exposure",
+                  "noise", "white_balance")
+EFFECTS = LINEAR_EFFECTS + ("jpeg",)
+
+# sRGB <-> linear look-up tables (the sRGB transfer function, IEC 61966-2-1)
+_S = np.arange(256, dtype=np.float64) / 255
+SRGB_TO_LINEAR = np.where(_S <= 0.04045, _S / 12.92, ((_S + 0.055) / 1.055) ** 2.4).astype(np.float32)
+_LIN_STEPS = 65535
+_L = np.arange(_LIN_STEPS + 1, dtype=np.float64) / _LIN_STEPS
+LINEAR_TO_SRGB8 = np.clip(np.round(255 * np.where(_L <= 0.0031308, 12.92 * _L,
+                                                    1.055 * _L ** (1 / 2.4) - 0.055)), 0, 255).astype(np.uint8)
+del _S, _L
+
+
+def srgb_to_linear(img_u8: np.ndarray) -> np.ndarray:
+    return SRGB_TO_LINEAR[img_u8]
+
+
+def linear_to_srgb8(lin: np.ndarray) -> np.ndarray:
+    idx = np.clip(lin, 0, 1) * _LIN_STEPS + 0.5
+    return LINEAR_TO_SRGB8[idx.astype(np.uint16)]
+
+
+# ---- sampling ------------------------------------------------------------------------
+
+def _u(rng, pair):
+    lo, hi = float(pair[0]), float(pair[1])
+    return lo + (hi - lo) * float(rng.random())
+
+
+def sample_params(pc, rng, focus_distance: float, focal_px: float = 1.0) -> dict:
+    """Draw the camera-model parameters for one image from config section ``pc``
+    (``PhotoConfig``) for a view focused near ``focus_distance`` (the look-at point)
+    with focal length ``focal_px`` (pixels). The same number of values is drawn whatever is switched on, so
+    turning one effect on or off does not change the others. Returns
+    ``{"enabled": bool, "effects": {name: params}}`` with only the active effects."""
+    if not pc.enabled:
+        return {"enabled": False, "effects": {}}
+    aperture = _u(rng, pc.aperture)
+    focus = float(focus_distance) * (1 + float(pc.focus_jitter) * (2 * float(rng.random()) - 1))
+    length = _u(rng, pc.motion_blur)
+    angle = 180.0 * float(rng.random())
+    shot, read = _u(rng, pc.shot_noise), _u(rng, pc.read_noise)
+    noise_seed = int(rng.integers(0, 2**31 - 1))
+    wb, tint = _u(rng, pc.white_balance), _u(rng, pc.tint)
+    ev = _u(rng, pc.exposure)
+    vig = _u(rng, pc.vignetting)
+    ca = _u(rng, pc.chromatic_aberration)
+    q_lo, q_hi = int(pc.jpeg_quality[0]), int(pc.jpeg_quality[1])
+    quality = int(rng.integers(q_lo, q_hi + 1)) if q_hi > 0 else 0
+    fx = {}
+    if aperture > 0:
+        fx["defocus"] = {"aperture": aperture, "focal_px": float(focal_px),
+                         "kappa_px_m": aperture * float(focal_px), "focus_distance": focus,
+                         "max_coc_px": float(pc.max_coc)}
+    if length > 0:
+        fx["motion_blur"] = {"length_px": length, "angle_deg": angle}
+    if ca > 0:
+        fx["chromatic_aberration"] = {"shift_px": ca}
+    if vig > 0:
+        fx["vignetting"] = {"strength": vig}
+    if ev != 0:
+        fx["exposure"] = {"ev": ev}
+    if shot > 0 or read > 0:
+        fx["noise"] = {"shot": shot, "read": read, "seed": noise_seed}
+    if wb != 0 or tint != 0:
+        fx["white_balance"] = {"temperature": wb, "tint": tint,
+                               "gains": [2 ** (wb / 2), 2 ** tint, 2 ** (-wb / 2)]}
+    if quality > 0:
+        fx["jpeg"] = {"quality": quality}
+    return {"enabled": True, "effects": fx, "order": [e for e in EFFECTS if e in fx]}
+
+
+# ---- the effects (float32 linear RGB, H x W x 3) ---------------------------------------
+
+def coc_map(depth, kappa, focus, max_coc):
+    """Circle-of-confusion diameter (pixels) per pixel; depth <= 0 (background) is at
+    infinity."""
+    d = np.asarray(depth, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        coc = np.where(d > 0, kappa * np.abs(d - focus) / (np.maximum(d, 1e-12) * focus), kappa / focus)
+    return np.minimum(coc, max_coc).astype(np.float32)
+
+
+def disc_kernel(radius: float, samples: int = 4) -> np.ndarray:
+    """Anti-aliased disc of the given radius (pixels), normalised to sum 1."""
+    n = int(math.ceil(radius))
+    offs = (np.arange(samples) + 0.5) / samples - 0.5
+    ax = np.arange(-n, n + 1, dtype=np.float64)
+    yy = (ax[:, None, None, None] + offs[None, None, :, None])
+    xx = (ax[None, :, None, None] + offs[None, None, None, :])
+    k = ((xx ** 2 + yy ** 2) <= radius ** 2).mean(axis=(2, 3))
+    return (k / k.sum()).astype(np.float32)
+
+
+def defocus(lin, depth, kappa, focus, max_coc):
+    r = coc_map(depth, kappa, focus, max_coc) / 2          # radius in pixels
+    out = np.zeros_like(lin)
+    for k in range(int(math.ceil(float(r.max()))) + 1):
+        wgt = np.clip(1 - np.abs(r - k), 0, 1)
+        if not wgt.any():
+            continue
+        layer = lin if k == 0 else cv2.filter2D(lin, -1, disc_kernel(k), borderType=cv2.BORDER_REFLECT)
+        out += layer * wgt[..., None]
+    return out
+
+
+def line_kernel(length: float, angle_deg: float, samples_per_px: int = 8) -> np.ndarray:
+    """Normalised anti-aliased line segment of ``length`` pixels through the centre."""
+    half = length / 2
+    n = int(math.ceil(half)) + 1
+    size = 2 * n + 1
+    k = np.zeros((size, size), np.float64)
+    t = np.linspace(-half, half, max(2, int(math.ceil(length * samples_per_px)) + 1))
+    a = math.radians(angle_deg)
+    xs, ys = n + t * math.cos(a), n - t * math.sin(a)
+    x0, y0 = np.floor(xs).astype(int), np.floor(ys).astype(int)
+    fx, fy = xs - x0, ys - y0
+    for dx, dy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
+                      (1, 1, fx * fy)):
+        np.add.at(k, (y0 + dy, x0 + dx), w)
+    return (k / k.sum()).astype(np.float32)
+
+
+def motion_blur(lin, length, angle_deg):
+    return cv2.filter2D(lin, -1, line_kernel(length, angle_deg), borderType=cv2.BORDER_REFLECT)
+
+
+def _radius_grid(h, w):
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    cy, cx = (h - 1) / 2, (w - 1) / 2
+    return xx - cx, yy - cy, math.hypot(cx, cy)
+
+
+def chromatic_aberration(lin, shift_px):
+    """Lateral CA: red magnified, blue shrunk about the centre, by ``shift_px`` pixels at
+    the corners (green is the reference)."""
+    h, w = lin.shape[:2]
+    dx, dy, rc = _radius_grid(h, w)
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    out = lin.copy()
+    for c, sign in ((0, 1.0), (2, -1.0)):
+        s = 1 + sign * shift_px / rc           # channel magnified by s: sample at p / s
+        mx, my = cx + dx / s, cy + dy / s
+        out[..., c] = cv2.remap(np.ascontiguousarray(lin[..., c]), mx, my, cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_REFLECT)
+    return out
+
+
+def vignetting(lin, strength):
+    h, w = lin.shape[:2]
+    dx, dy, rc = _radius_grid(h, w)
+    gain = 1 - strength * (dx ** 2 + dy ** 2) / rc ** 2
+    return lin * gain[..., None]
+
+
+def add_noise(lin, shot, read, seed):
+    """Shot + read noise in linear units: ``x + sqrt(shot * x + read^2) * N(0, 1)``,
+    clipped to [0, 1]."""
+    rng = np.random.default_rng(seed)
+    var = shot * np.maximum(lin, 0) + read * read
+    noisy = lin + np.sqrt(var) * rng.standard_normal(lin.shape, dtype=np.float32)
+    return np.clip(noisy, 0, 1)
+
+
+def jpeg(img_u8, quality):
+    ok, buf = cv2.imencode(".jpg", img_u8[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+
+
+def apply(image: np.ndarray, params: dict, depth: np.ndarray | None = None) -> np.ndarray:
+    """The camera model on an 8-bit sRGB image (H x W x 3) with the parameters of
+    ``sample_params``; ``depth`` (view-space, <= 0 off the body) drives defocus.
+    Returns a new uint8 image (the input itself when no effect is active)."""
+    fx = params.get("effects", {}) if params.get("enabled", True) else {}
+    img = image
+    if any(e in fx for e in LINEAR_EFFECTS):
+        lin = srgb_to_linear(img)
+        if "defocus" in fx:
+            p = fx["defocus"]
+            if depth is None:
+                raise ValueError("defocus needs the depth buffer")
+            lin = defocus(lin, depth, p["kappa_px_m"], p["focus_distance"], p["max_coc_px"])
+        if "motion_blur" in fx:
+            lin = motion_blur(lin, fx["motion_blur"]["length_px"], fx["motion_blur"]["angle_deg"])
+        if "chromatic_aberration" in fx:
+            lin = chromatic_aberration(lin, fx["chromatic_aberration"]["shift_px"])
+        if "vignetting" in fx:
+            lin = vignetting(lin, fx["vignetting"]["strength"])
+        if "exposure" in fx:
+            lin = lin * np.float32(2 ** fx["exposure"]["ev"])
+        if "noise" in fx:
+            p = fx["noise"]
+            lin = add_noise(lin, p["shot"], p["read"], p["seed"])
+        if "white_balance" in fx:
+            lin = lin * np.asarray(fx["white_balance"]["gains"], np.float32)
+        img = linear_to_srgb8(lin)
+    if "jpeg" in fx:
+        img = jpeg(img, fx["jpeg"]["quality"])
+    return img
