@@ -177,6 +177,8 @@ class Renderer:
             colors = [ctx.renderbuffer((w, h), 1, dtype="u2") for _ in range(MAX_LABEL_TARGETS)]
         elif kind == "rgb":
             colors = [ctx.texture((w, h), 4, dtype="f4")]
+        elif kind == "display":  # 8-bit, for showing on screen (previewer)
+            colors = [ctx.renderbuffer((w, h), 4, dtype="f1")]
         elif kind == "resolve":
             colors, depth = [ctx.renderbuffer((w, h), 4, dtype="f4")], None
         else:
@@ -213,13 +215,7 @@ class Renderer:
             raise ValueError(f"unknown pass(es) {sorted(unknown)}; choose from {PASSES}")
         size = (camera.width, camera.height)  # framebuffers are cached per size
         gpu = self._gpu_mesh(mesh)
-        view = camera.view_matrix()
-        if camera.near is not None and camera.far is not None:
-            near, far = camera.near, camera.far
-        else:
-            near, far = camera.clip_planes(*mesh.bounds, vertices=mesh.vertices)
-        proj = camera.projection_matrix(near, far)
-        mats = {"u_view": view.T.astype("f4").tobytes(), "u_proj": proj.T.astype("f4").tobytes()}
+        mats = self._matrices(mesh, camera)
         out = {}
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
@@ -233,6 +229,33 @@ class Renderer:
         if "labels" in passes:
             out.update(self._render_labels(gpu, mats, label_texture, label_textures, size))
         return out
+
+    @staticmethod
+    def _matrices(mesh, camera):
+        if camera.near is not None and camera.far is not None:
+            near, far = camera.near, camera.far
+        else:
+            near, far = camera.clip_planes(*mesh.bounds, vertices=mesh.vertices)
+        return {"u_view": camera.view_matrix().T.astype("f4").tobytes(),
+                "u_proj": camera.projection_matrix(near, far).T.astype("f4").tobytes()}
+
+    def _set_shading(self, gpu, camera, lights, material):
+        """Lights, material, eye and texture of the Phong program (default light: the
+        paper's blending light at the camera)."""
+        lights = check_lights([PointLight(camera.eye)] if lights is None else lights)
+        material = material or Material()
+        prog = self.programs["rgb"]
+        pad = [(0.0, 0.0, 0.0)] * (MAX_LIGHTS - len(lights))
+        prog["u_num_lights"].value = len(lights)
+        for key, attr in (("u_light_pos", "position"), ("u_light_ambient", "ambient"),
+                          ("u_light_diffuse", "diffuse"), ("u_light_specular", "specular")):
+            prog[key].write(np.array([getattr(l, attr) for l in lights] + pad, "f4").tobytes())
+        prog["u_mat_specular"].value = material.specular
+        prog["u_shininess"].value = material.shininess
+        prog["u_wrap"].value = material.wrap
+        prog["u_eye"].value = tuple(camera.eye)
+        gpu.texture.use(0)
+        prog["u_texture"].value = 0
 
     def _read(self, fbo, attachment, components, dtype, np_dtype):
         w, h = fbo.size
@@ -256,23 +279,7 @@ class Renderer:
         k = int(supersample)
         if not 1 <= k <= MAX_SUPERSAMPLE:
             raise ValueError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
-        if lights is None:
-            lights = [PointLight(camera.eye)]
-        lights = check_lights(lights)
-        material = material or Material()
-        prog = self.programs["rgb"]
-        n = len(lights)
-        pad = [(0.0, 0.0, 0.0)] * (MAX_LIGHTS - n)
-        prog["u_num_lights"].value = n
-        for key, attr in (("u_light_pos", "position"), ("u_light_ambient", "ambient"),
-                          ("u_light_diffuse", "diffuse"), ("u_light_specular", "specular")):
-            prog[key].write(np.array([getattr(l, attr) for l in lights] + pad, "f4").tobytes())
-        prog["u_mat_specular"].value = material.specular
-        prog["u_shininess"].value = material.shininess
-        prog["u_wrap"].value = material.wrap
-        prog["u_eye"].value = tuple(camera.eye)
-        gpu.texture.use(0)
-        prog["u_texture"].value = 0
+        self._set_shading(gpu, camera, lights, material)
         fbo = self._fbo("rgb", size[0] * k, size[1] * k)
         self._draw(gpu, "rgb", fbo, mats)
         if k > 1:
@@ -371,41 +378,11 @@ class Renderer:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
             gpu = self._gpu_mesh(mesh)
-            if camera.near is not None and camera.far is not None:
-                near, far = camera.near, camera.far
-            else:
-                near, far = camera.clip_planes(*mesh.bounds, vertices=mesh.vertices)
-            mats = {"u_view": camera.view_matrix().T.astype("f4").tobytes(),
-                    "u_proj": camera.projection_matrix(near, far).T.astype("f4").tobytes()}
-            lights = check_lights([PointLight(camera.eye)] if lights is None else lights)
-            material = material or Material()
-            prog = self.programs["rgb"]
-            pad = [(0.0, 0.0, 0.0)] * (MAX_LIGHTS - len(lights))
-            prog["u_num_lights"].value = len(lights)
-            for key, attr in (("u_light_pos", "position"), ("u_light_ambient", "ambient"),
-                              ("u_light_diffuse", "diffuse"), ("u_light_specular", "specular")):
-                prog[key].write(np.array([getattr(l, attr) for l in lights] + pad, "f4").tobytes())
-            prog["u_mat_specular"].value = material.specular
-            prog["u_shininess"].value = material.shininess
-            prog["u_wrap"].value = material.wrap
-            prog["u_eye"].value = tuple(camera.eye)
-            gpu.texture.use(0)
-            prog["u_texture"].value = 0
+            self._set_shading(gpu, camera, lights, material)
             self.ctx.enable(moderngl.DEPTH_TEST)
             self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-            if dtype == "f4":
-                fbo = self._fbo("rgb", camera.width, camera.height)
-            else:
-                size = (camera.width, camera.height)
-                fbo = getattr(self, "_display_fbo", None)
-                if fbo is None or fbo.size != size:
-                    if fbo is not None:
-                        self._release_fbo(fbo)
-                    fbo = self.ctx.framebuffer(
-                        color_attachments=[self.ctx.renderbuffer(size, 4, dtype="f1")],
-                        depth_attachment=self.ctx.depth_renderbuffer(size))
-                    self._display_fbo = fbo
-            self._draw(gpu, "rgb", fbo, mats)
+            fbo = self._fbo("rgb" if dtype == "f4" else "display", camera.width, camera.height)
+            self._draw(gpu, "rgb", fbo, self._matrices(mesh, camera))
             return fbo
 
 
