@@ -77,7 +77,7 @@ class SelectAndPaste(_Stage):
         if cfg.lesions.per_body == 0:
             log.info("lesions.per_body is 0: nothing to paste")
             return
-        lesions = None
+        lesions = getattr(self, "_lesions", None)  # a worker keeps it across bodies
         p = cfg.paste
         settings = PasteSettings(p.view_size, p.fov_deg, tuple(p.w), p.max_depth_change,
                                  p.dilation, p.attempts, tuple(cfg.lesions.size))
@@ -85,7 +85,8 @@ class SelectAndPaste(_Stage):
             folder = self.body_dir(body_id)
             if PastedTextures.exists(folder):
                 continue
-            lesions = lesions if lesions is not None else lesion_source(cfg)
+            if lesions is None:
+                lesions = self._lesions = lesion_source(cfg)
             if len(lesions) == 0:
                 raise PasteError(f"lesions.source {cfg.lesions.source!r}: no usable lesions")
             t0 = time.perf_counter()

@@ -1,0 +1,139 @@
+"""The Ray executor on a small local cluster started here: the same bytes as the local
+executor, for 1 and 2 actors, and a complete, identical dataset when an actor is killed
+(ray.kill, or SIGKILL of its process) in the middle of the run."""
+import logging
+import os
+import shutil
+import signal
+import threading
+import time
+
+import pytest
+
+ray = pytest.importorskip("ray")
+
+import glsynth as gs  # noqa: E402
+from glsynth.config import load_config  # noqa: E402
+from glsynth.pipeline import ray_executor  # noqa: E402
+from test_pipeline import SMALL  # noqa: E402  (the reduced end-to-end config)
+
+pytestmark = pytest.mark.slow
+
+# two bodies so that prepare runs in parallel and chunks have a body to stick to
+OVERRIDES = SMALL + ["bodies.count=2", "views.per_body=6"]
+
+
+def small_config():
+    return load_config(None, OVERRIDES)
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    started = not ray.is_initialized()
+    if started:
+        ray.init(num_cpus=2, include_dashboard=False, logging_level=logging.WARNING)
+    yield
+    if started:
+        ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("local")
+    gs.pipeline.generate(small_config(), out, workers=1)
+    return out
+
+
+def _dataset_bytes(out):
+    files = {}
+    for root, _, names in os.walk(out):
+        for n in names:
+            rel = os.path.relpath(os.path.join(root, n), out)
+            if rel != "manifest.json" and not rel.startswith("bodies"):
+                with open(os.path.join(root, n), "rb") as fh:
+                    files[rel] = fh.read()
+    return files
+
+
+def _assert_same(reference, out):
+    a, b = _dataset_bytes(reference), _dataset_bytes(out)
+    assert sorted(a) == sorted(b), sorted(set(a) ^ set(b))[:10]
+    assert [k for k in a if a[k] != b[k]] == []
+
+
+def _our_actors():
+    return [n for n in ray.util.list_named_actors() if n.startswith(ray_executor.ACTOR_PREFIX)]
+
+
+def _no_actors_left(timeout=10):
+    """ray.kill is asynchronous: give the cluster a moment to forget the names."""
+    deadline = time.time() + timeout
+    while _our_actors() and time.time() < deadline:
+        time.sleep(0.1)
+    return _our_actors() == []
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_ray_matches_local_executor(ray_cluster, reference, tmp_path, workers):
+    man = gs.pipeline.generate(small_config(), tmp_path / "ray", workers=workers, executor="ray")
+    assert man["executor"] == "ray" and man["workers"] == workers
+    assert man["counts"]["images"] == 12
+    assert "blend" in man["timings_seconds"] and "views" in man["timings_seconds"]
+    _assert_same(reference, tmp_path / "ray")
+    assert ray.is_initialized(), "run_ray shut down a cluster it did not start"
+    assert _no_actors_left(), "actors left behind"
+
+
+def _kill_when_first_sample_appears(out, how, killed):
+    """Background thread: at the first sample JSON, kill one worker actor."""
+    tgt = os.path.join(out, "targets")
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        if os.path.isdir(tgt) and any(n.endswith(".json") for n in os.listdir(tgt)):
+            break
+        time.sleep(0.01)
+    else:
+        return
+    if how == "ray.kill":
+        names = _our_actors()
+        if names:
+            ray.kill(ray.get_actor(names[0]))
+            killed.append(names[0])
+    else:  # SIGKILL the actor's worker process, as the OOM killer or a lost node would
+        import psutil
+        # only this cluster's processes (the local Ray cluster runs under this process)
+        for p in psutil.Process().children(recursive=True):
+            try:
+                title = (p.cmdline() or [""])[0]
+            except psutil.Error:
+                continue
+            if title.startswith("ray::GlsynthWorker"):
+                os.kill(p.pid, signal.SIGKILL)
+                killed.append(p.pid)
+                break
+
+
+@pytest.mark.parametrize("how", ["ray.kill", "sigkill"])
+def test_killed_actor_is_replaced(ray_cluster, reference, tmp_path, caplog, how):
+    out = tmp_path / "ray"
+    os.makedirs(out)
+    # bodies already pasted and blended: the kill lands in the views stage
+    shutil.copytree(reference / "bodies", out / "bodies")
+    killed = []
+    killer = threading.Thread(target=_kill_when_first_sample_appears, args=(str(out), how, killed))
+    killer.start()
+    with caplog.at_level(logging.WARNING, logger="glsynth.pipeline.ray_executor"):
+        man = gs.pipeline.generate(small_config(), out, resume=True, workers=2, executor="ray")
+    killer.join()
+    assert killed, "no actor was killed"
+    assert any("died" in r.getMessage() for r in caplog.records), "the kill went unnoticed"
+    assert man["counts"]["images"] == 12
+    _assert_same(reference, out)   # nothing missing, duplicated or half-written
+    assert _no_actors_left()
+
+
+def test_actor_start_failure_is_reported(ray_cluster, tmp_path, monkeypatch):
+    monkeypatch.setenv("GLSYNTH_GL_BACKEND", "no-such-backend")  # passed on to the actors
+    with pytest.raises(ray_executor.RayExecutorError, match="no-such-backend"):
+        gs.pipeline.generate(small_config(), tmp_path / "bad", workers=1, executor="ray")
+    assert _no_actors_left()
