@@ -1,0 +1,68 @@
+"""``glsynth train`` and ``glsynth evaluate`` (registered by glsynth.cli)."""
+from __future__ import annotations
+
+
+def _threads(args):
+    if args.threads:
+        import torch
+        torch.set_num_threads(args.threads)
+
+
+def cmd_train(args):
+    from .trainer import train
+    _threads(args)
+    ck = train(args.data, args.out, size=args.size, epochs=args.epochs, batch_size=args.batch_size,
+               lr=args.lr, device=args.device, time_limit=args.time_limit, resume=args.resume,
+               seed=args.seed, init=args.init, workers=args.workers, width=args.width,
+               save_every=args.save_every, progress=not args.quiet)
+    h = ck["history"][-1] if ck["history"] else {}
+    print(f"wrote {args.out}: epoch {ck['epoch']}/{ck['epochs_planned']}, step {ck['step']}, "
+          f"{ck['n_parameters']} parameters" + (f", last epoch loss {h['loss']:.4f}" if h else "")
+          + (f" (stopped: {ck['stopped']}; continue with --resume)" if ck.get("stopped") else ""))
+
+
+def cmd_evaluate(args):
+    from .evaluate import evaluate
+    _threads(args)
+    s = evaluate(args.model, args.real, args.layout, args.out, device=args.device, size=args.size,
+                 grid_n=args.grid, progress=not args.quiet)
+    for c, v in s["classes"].items():
+        print(f"{c:8s} Jaccard {v['jaccard_mean']:.3f} ± {v['jaccard_std']:.3f}  "
+              f"Dice {v['dice_mean']:.3f} ± {v['dice_std']:.3f}  ({v['n_empty_truth']}/{v['n']} empty truth)")
+    print(f"wrote {args.out}/report.md, per_image.csv, grid.png")
+
+
+def register(sub):
+    p = sub.add_parser("train", help="train the lesion/skin/non-skin + anatomy segmentation network")
+    p.add_argument("--data", action="append", required=True, metavar="DIR",
+                   help="glsynth generate output folder (repeatable)")
+    p.add_argument("--out", required=True, help="checkpoint to write (e.g. model.pt)")
+    p.add_argument("--size", type=int, default=256, help="training crop size in pixels (default 256)")
+    p.add_argument("--epochs", type=int, default=10)
+    p.add_argument("--batch-size", type=int, default=8)
+    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    p.add_argument("--time-limit", type=float, default=None, metavar="MIN",
+                   help="stop after this many minutes (checkpoint saved; continue with --resume)")
+    p.add_argument("--resume", action="store_true", help="continue training the checkpoint in --out")
+    p.add_argument("--init", default=None, help="initialise from a local checkpoint / state dict")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--width", type=float, default=1.0, help="channel width multiplier of the network")
+    p.add_argument("--workers", type=int, default=0, help="data loader processes (default 0)")
+    p.add_argument("--save-every", type=float, default=5.0, metavar="MIN",
+                   help="also checkpoint every MIN minutes within an epoch (default 5)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="CPU threads for torch (default: torch's choice; use 1 on a busy machine)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(fn=cmd_train)
+    p = sub.add_parser("evaluate", help="per-image Jaccard/Dice of a trained model on real images")
+    p.add_argument("--model", required=True)
+    p.add_argument("--real", required=True, help="folder of real images with masks")
+    p.add_argument("--layout", required=True, choices=("fitz17k", "pairs"))
+    p.add_argument("--out", required=True, help="report folder")
+    p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    p.add_argument("--size", type=int, default=None, help="shorter side (default: the training size)")
+    p.add_argument("--grid", type=int, default=12, help="images in grid.png (default 12)")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads for torch")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(fn=cmd_evaluate)

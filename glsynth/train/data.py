@@ -1,0 +1,95 @@
+"""Preprocessing and augmentation shared by training and evaluation.
+
+Preprocessing follows the paper (section 3.2.3 of the experimental details):
+Shades of Gray colour constancy (p = 6) on the whole image, then per-channel
+normalisation with the ImageNet mean and standard deviation (the statistics the
+paper's pretrained backbone expects; kept here so that ImageNet-initialised backbones
+can be dropped in), and a resize that keeps the aspect ratio so that the shorter side
+equals the training size.
+
+Training augmentation (``augment``): random horizontal and vertical flips, rotation
+(+-30 degrees), scale (0.75-1.33) and translation, applied as one affine warp to the
+image (bilinear) and to every label map (nearest); brightness, contrast, saturation and
+hue shifts and a per-channel gain (a colour cast, which Shades of Gray partly undoes, as
+it would on a real photograph), all before the colour constancy step. Pixels that the
+warp brings in from outside the image are marked 255 (ignored) in the labels.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..assets.colour import shades_of_gray
+
+MEAN = np.array([0.485, 0.456, 0.406], np.float32)
+STD = np.array([0.229, 0.224, 0.225], np.float32)
+IGNORE = 255
+
+
+def normalise(rgb_uint8: np.ndarray) -> np.ndarray:
+    """HxWx3 uint8 RGB -> 3xHxW float32, Shades of Gray then ImageNet normalisation."""
+    x = shades_of_gray(rgb_uint8).astype(np.float32) / 255.0
+    return ((x - MEAN) / STD).transpose(2, 0, 1).copy()
+
+
+def resize_shorter(img: np.ndarray, size: int, interp=cv2.INTER_AREA) -> np.ndarray:
+    """Resize keeping the aspect ratio so that the shorter side is `size`."""
+    h, w = img.shape[:2]
+    s = size / min(h, w)
+    nh, nw = max(1, int(round(h * s))), max(1, int(round(w * s)))
+    if (nh, nw) == (h, w):
+        return img
+    if s > 1 and interp == cv2.INTER_AREA:
+        interp = cv2.INTER_LINEAR
+    return cv2.resize(img, (nw, nh), interpolation=interp)
+
+
+def preprocess(rgb_uint8: np.ndarray, size: int) -> np.ndarray:
+    """Evaluation preprocessing: resize (shorter side = size), Shades of Gray, normalise."""
+    return normalise(resize_shorter(rgb_uint8, size))
+
+
+def _colour_jitter(rng, img):
+    x = img.astype(np.float32) / 255.0
+    hsv = cv2.cvtColor(x, cv2.COLOR_RGB2HSV)
+    hsv[..., 0] = (hsv[..., 0] + rng.uniform(-8, 8)) % 360.0           # hue, degrees
+    hsv[..., 1] = np.clip(hsv[..., 1] * rng.uniform(0.75, 1.25), 0, 1)  # saturation
+    x = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+    x = x * rng.uniform(0.75, 1.25)                                     # brightness
+    m = x.mean()
+    x = (x - m) * rng.uniform(0.75, 1.25) + m                           # contrast
+    x = x * rng.uniform(0.9, 1.1, size=3).astype(np.float32)            # colour cast
+    return np.clip(np.rint(x * 255.0), 0, 255).astype(np.uint8)
+
+
+def augment(rng: np.random.Generator, image: np.ndarray, labels: dict, size: int):
+    """Random affine + colour augmentation to a size x size crop.
+
+    image: HxWx3 uint8; labels: name -> HxW uint8 maps (IGNORE-valued pixels stay ignored).
+    Returns (image, labels) at size x size.
+    """
+    h, w = image.shape[:2]
+    base = size / min(h, w)
+    s = base * np.exp(rng.uniform(np.log(0.75), np.log(1.33)))
+    ang = rng.uniform(-30, 30)
+    fx = -1.0 if rng.random() < 0.5 else 1.0
+    fy = -1.0 if rng.random() < 0.5 else 1.0
+    a = np.deg2rad(ang)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) @ np.diag([fx, fy]) * s
+    # image centre (plus a random shift of up to 15% of the view) -> output centre
+    c_src = np.array([w / 2, h / 2]) + rng.uniform(-0.15, 0.15, 2) * np.array([w, h])
+    t = np.array([size / 2, size / 2]) - R @ c_src
+    M = np.hstack([R, t[:, None]]).astype(np.float64)
+    img = cv2.warpAffine(image, M, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+    out = {}
+    for k, lab in labels.items():
+        out[k] = cv2.warpAffine(lab, M, (size, size), flags=cv2.INTER_NEAREST,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=IGNORE)
+    return _colour_jitter(rng, img), out
+
+
+def plain(image: np.ndarray, labels: dict, size: int):
+    """No augmentation: resize to size x size (image area-interpolated, labels nearest)."""
+    img = cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA if min(image.shape[:2]) > size
+                     else cv2.INTER_LINEAR)
+    return img, {k: cv2.resize(v, (size, size), interpolation=cv2.INTER_NEAREST) for k, v in labels.items()}

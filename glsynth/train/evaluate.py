@@ -1,0 +1,199 @@
+"""Evaluate a trained model on real images: per-image Jaccard and Dice.
+
+Ground truth:
+
+* ``fitz17k`` layout (one folder per image: ``image.jpg`` + ``lesions.png`` +
+  ``nonskin.png``): lesion = lesions.png, non-skin = nonskin.png (a missing nonskin.png
+  means no non-skin pixels), skin = neither. Lesion, skin and non-skin are reported.
+* ``pairs`` layout (image + lesion mask, e.g. ISIC, PH2, DermoFit): lesion only; the
+  mask says nothing about skin vs non-skin, so only lesion scores are reported.
+
+The prediction is the arg-max of the 3-class head, computed on the preprocessed image
+(Shades of Gray, resize so that the shorter side is the training size, normalise) and
+upsampled bilinearly (logits) to the original resolution, where it is scored.
+Empty-mask conventions are those of ``glsynth.train.metrics`` (both empty: 1, included).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ..assets.lesions import load_lesions
+from ..io.images import read_mask, read_rgb, write_png, write_text
+from .data import preprocess
+from .metrics import dice, jaccard
+from .trainer import load_model
+
+CLASSES = ("lesion", "skin", "nonskin")
+COLOURS = np.array([[220, 40, 40], [70, 180, 80], [40, 40, 120], [150, 150, 150]], np.uint8)  # + unknown
+PAPER = {"lesion": "0.61 ± 0.23", "skin": "0.88 ± 0.10", "nonskin": "0.60 ± 0.43"}
+
+
+def real_samples(path, layout):
+    """[(id, image_path, {class: mask_path or None})] of a real evaluation folder."""
+    lesions = load_lesions(path, layout=layout, lazy=True)
+    out = []
+    for e in lesions.entries:
+        if layout == "fitz17k":
+            ns = e.meta.get("nonskin_mask_path")
+            les = e.meta.get("lesions_mask_path")
+            les = les if les and os.path.isfile(les) else e.mask_paths[-1]
+            out.append((e.id, e.image_path, {"lesion": les,
+                                            "nonskin": ns if ns and os.path.isfile(ns) else None}))
+        else:
+            out.append((e.id, e.image_path, {"lesion": e.mask_paths[-1]}))
+    return out
+
+
+@torch.no_grad()
+def predict(model, rgb: np.ndarray, size: int, device="cpu") -> np.ndarray:
+    """HxW uint8 class map (0 lesion, 1 skin, 2 non-skin) at the image's own resolution."""
+    x = torch.from_numpy(preprocess(rgb, size))[None].to(device)
+    logits = model(x)["seg"]
+    logits = F.interpolate(logits, size=rgb.shape[:2], mode="bilinear", align_corners=False)
+    return logits.argmax(1)[0].to(torch.uint8).cpu().numpy()
+
+
+def truth_map(shape, masks: dict) -> np.ndarray:
+    """HxW uint8: 0 lesion, 1 skin, 2 non-skin; 3 = unknown (pairs: everything off the lesion)."""
+    les = read_mask(masks["lesion"])
+    if les.shape != tuple(shape):
+        raise ValueError(f"{masks['lesion']}: mask {les.shape} does not match image {tuple(shape)}")
+    if "nonskin" not in masks:
+        t = np.full(shape, 3, np.uint8)
+    else:
+        t = np.ones(shape, np.uint8)
+        if masks["nonskin"]:
+            ns = read_mask(masks["nonskin"])
+            if ns.shape != tuple(shape):
+                raise ValueError(f"{masks['nonskin']}: mask {ns.shape} does not match image {tuple(shape)}")
+            t[ns] = 2
+    t[les] = 0  # a pixel marked both lesion and non-skin counts as lesion
+    return t
+
+
+def score(pred: np.ndarray, truth: np.ndarray, classes) -> dict:
+    row = {}
+    for c in classes:
+        k = CLASSES.index(c)
+        p, g = pred == k, truth == k
+        row[f"{c}_jaccard"] = jaccard(p, g)
+        row[f"{c}_dice"] = dice(p, g)
+        row[f"{c}_truth_px"] = int(g.sum())
+        row[f"{c}_pred_px"] = int(p.sum())
+    return row
+
+
+def _tile(img, h):
+    s = h / img.shape[0]
+    return cv2.resize(img, (max(1, int(round(img.shape[1] * s))), h), interpolation=cv2.INTER_AREA)
+
+
+def grid(rows, height=160, width=None):
+    """rows: [(name, rgb, truth map, prediction map)] -> one RGB image, 3 columns."""
+    tiles = []
+    for name, rgb, t, p in rows:
+        a = _tile(rgb, height)
+        b = _tile(COLOURS[t], height)
+        c = _tile(COLOURS[p], height)
+        line = np.concatenate([a, np.full((height, 4, 3), 255, np.uint8), b,
+                               np.full((height, 4, 3), 255, np.uint8), c], 1)
+        cv2.putText(line, name[:40], (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
+        tiles.append(line)
+    w = width or max(t.shape[1] for t in tiles)
+    tiles = [np.pad(t, ((0, 4), (0, w - t.shape[1]), (0, 0)), constant_values=255) if t.shape[1] < w
+             else np.pad(t[:, :w], ((0, 4), (0, 0), (0, 0)), constant_values=255) for t in tiles]
+    head = np.full((22, w, 3), 255, np.uint8)
+    cw = (w - 8) // 3
+    for i, txt in enumerate(("image", "truth", "prediction")):
+        cv2.putText(head, txt, (4 + i * cw, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    legend = np.full((22, w, 3), 255, np.uint8)
+    x = 4
+    for txt, col in zip(("lesion", "skin", "non-skin", "unknown"), COLOURS):
+        legend[5:17, x:x + 12] = col
+        cv2.putText(legend, txt, (x + 16, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        x += 100
+    return np.concatenate([head] + tiles + [legend], 0)
+
+
+def _stats(vals):
+    v = np.asarray(vals, float)
+    return (float(v.mean()), float(v.std())) if v.size else (float("nan"), float("nan"))
+
+
+def summarise(rows, classes):
+    s = {}
+    for c in classes:
+        j = [r[f"{c}_jaccard"] for r in rows]
+        d = [r[f"{c}_dice"] for r in rows]
+        ne = [r[f"{c}_jaccard"] for r in rows if r[f"{c}_truth_px"] > 0]
+        s[c] = {"jaccard_mean": _stats(j)[0], "jaccard_std": _stats(j)[1],
+                "dice_mean": _stats(d)[0], "dice_std": _stats(d)[1],
+                "jaccard_nonempty_mean": _stats(ne)[0], "jaccard_nonempty_std": _stats(ne)[1],
+                "n": len(j), "n_empty_truth": len(j) - len(ne)}
+    return s
+
+
+def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, progress=True):
+    """Score `model_path` on the real images in `real`; write report.md, per_image.csv,
+    summary.json and grid.png to `out`. Returns the summary dict."""
+    if layout not in ("fitz17k", "pairs"):
+        raise ValueError(f"unknown layout {layout!r} (expected 'fitz17k' or 'pairs')")
+    model, ck = load_model(model_path, device)
+    size = int(size or ck["hparams"]["size"])
+    samples = real_samples(real, layout)
+    classes = CLASSES if layout == "fitz17k" else ("lesion",)
+    rows, shown = [], []
+    from tqdm import tqdm
+    for sid, img_path, masks in tqdm(samples, desc="evaluate", unit="img", disable=not progress):
+        rgb = read_rgb(img_path)
+        truth = truth_map(rgb.shape[:2], masks)
+        pred = predict(model, rgb, size, device)
+        rows.append({"id": sid, "image": img_path, "width": rgb.shape[1], "height": rgb.shape[0],
+                     **score(pred, truth, classes)})
+        if len(shown) < grid_n:
+            shown.append((sid, rgb, truth, pred))
+    os.makedirs(out, exist_ok=True)
+    buf = io.StringIO()
+    wr = csv.DictWriter(buf, fieldnames=list(rows[0].keys()), lineterminator="\n")
+    wr.writeheader()
+    for r in rows:
+        wr.writerow({k: (f"{v:.6f}" if isinstance(v, float) else v) for k, v in r.items()})
+    write_text(os.path.join(out, "per_image.csv"), buf.getvalue())
+    summary = {"model": os.fspath(model_path), "real": os.fspath(real), "layout": layout, "size": size,
+               "n_images": len(rows), "classes": summarise(rows, classes),
+               "model_steps": ck.get("step"), "model_data": ck.get("data")}
+    write_text(os.path.join(out, "summary.json"), json.dumps(summary, indent=1))
+    write_png(os.path.join(out, "grid.png"), grid(shown))
+    write_text(os.path.join(out, "report.md"), report_md(summary))
+    return summary
+
+
+def report_md(s):
+    lines = [f"# Segmentation evaluation", "",
+             f"- model: `{s['model']}` ({s['model_steps']} training steps on {s['model_data']})",
+             f"- images: `{s['real']}` ({s['layout']} layout), {s['n_images']} images",
+             f"- preprocessing: Shades of Gray (p=6), shorter side resized to {s['size']} px, "
+             "ImageNet normalisation; scored at the original resolution", "",
+             "Per-image Jaccard (J) and Dice (D), mean ± std over images. Empty-mask convention: "
+             "truth and prediction both empty → 1, truth empty but prediction not → 0; all images "
+             "are included in the first columns; the last column leaves out images whose truth for "
+             "that class is empty.", "",
+             "| class | J mean ± std | D mean ± std | images with empty truth | J over non-empty truth | paper (Fitzpatrick17k, 25 images) |",
+             "|---|---|---|---|---|---|"]
+    for c, v in s["classes"].items():
+        lines.append(f"| {c} | {v['jaccard_mean']:.3f} ± {v['jaccard_std']:.3f} | "
+                     f"{v['dice_mean']:.3f} ± {v['dice_std']:.3f} | {v['n_empty_truth']} / {v['n']} | "
+                     f"{v['jaccard_nonempty_mean']:.3f} ± {v['jaccard_nonempty_std']:.3f} | {PAPER[c]} |")
+    lines += ["", "`per_image.csv` has every image's scores and pixel counts; `grid.png` shows "
+              "image / truth / prediction (red lesion, green skin, blue non-skin, grey unknown)."]
+    if s["layout"] == "pairs":
+        lines += ["", "Pairs layout: the masks only mark the lesion, so skin and non-skin are not scored."]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,342 @@
+"""Segmentation training and evaluation (glsynth.train): loss, training, checkpoints, metrics."""
+import csv
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+import glsynth as gs
+from glsynth.config import load_config
+from glsynth.io.images import read_rgb, write_png
+from glsynth.train import metrics
+from glsynth.train.evaluate import predict, score, truth_map
+from glsynth.train.loss import (anatomy_jaccard_loss, fuzzy_jaccard_loss, nevi_ignore_mask,
+                                seg_jaccard_loss)
+from glsynth.train.model import SegNet
+from glsynth.train.trainer import load_model, train
+
+TINY = ["bodies.count=1", "bodies.texture_size=512", "lesions.per_body=2", "blend.method=paste",
+        "views.per_body=4", "views.size=96", "views.supersample=1", "paste.view_size=256",
+        "backgrounds.count=2", "seed=11"]
+FAST = dict(size=64, batch_size=4, lr=5e-3, progress=False, save_every=0)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)  # tiny tensors: threads only add contention
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def synth(tmp_path_factory):
+    out = tmp_path_factory.mktemp("synth")
+    gs.pipeline.generate(load_config(None, TINY), out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def trained(synth, tmp_path_factory):
+    path = tmp_path_factory.mktemp("model") / "model.pt"
+    ck = train(synth, path, epochs=12, augment=False, seed=3, **FAST)
+    return path, ck
+
+
+def onehot(target, n):
+    return torch.nn.functional.one_hot(target.clamp(0, n - 1), n).permute(0, 3, 1, 2).float()
+
+
+def fuzzy_j(p, g, w):
+    """Independent reference: Crum's fuzzy Jaccard sum(min) / sum(max) over weighted pixels."""
+    return (np.minimum(p, g) * w).sum() / (np.maximum(p, g) * w).sum()
+
+
+# ---------------------------------------------------------------------------------------
+# Loss
+
+
+def _seg_example():
+    t = torch.ones(2, 8, 8, dtype=torch.long)          # skin
+    t[0, :3, :] = 2                                      # non-skin rows
+    t[0, 4:6, 4:6] = 0                                   # a lesion in image 0 only
+    t[1, :, :2] = 2
+    return t
+
+
+def test_loss_is_zero_for_a_perfect_prediction():
+    t = _seg_example()
+    assert seg_jaccard_loss(onehot(t, 3), t).item() == 0.0
+    a = torch.zeros(2, 8, 8, dtype=torch.long)
+    a[0, 2:6, 2:6], a[1, :4] = 3, 6
+    assert anatomy_jaccard_loss(onehot(a, 8), a).item() == 0.0
+    total, parts = fuzzy_jaccard_loss(onehot(t, 3) * 50, t, onehot(a, 8) * 50, a)
+    assert total.item() < 1e-6 and parts["seg"] < 1e-6 and parts["anatomy"] < 1e-6
+    # with nevus boxes and ignored (255) pixels too
+    t2 = t.clone()
+    t2[1, 7, :] = 255
+    ign = torch.zeros(2, 8, 8, dtype=torch.bool)
+    ign[0, 3:7, 3:7] = True
+    assert seg_jaccard_loss(onehot(t2, 3), t2, ign).item() == 0.0
+
+
+def test_seg_loss_matches_hand_computation_per_image_and_channel():
+    t = _seg_example()
+    g = torch.Generator().manual_seed(0)
+    p = torch.softmax(torch.randn(2, 3, 8, 8, generator=g), 1)
+    ign = torch.zeros(2, 8, 8, dtype=torch.bool)
+    ign[0, 5:8, 5:8] = True                              # nevus box overlapping the lesion
+    pn, tn, ig = p.numpy(), t.numpy(), ign.numpy()
+    losses = []
+    for b in range(2):
+        for c in range(3):
+            gc = (tn[b] == c).astype(float)
+            w = np.ones((8, 8))
+            if c in (0, 1):
+                w[ig[b]] = 0                             # nevus boxes: lesion and skin channels
+            if c == 1:
+                w[tn[b] == 0] = 0                        # lesion pixels: skin channel
+            if (gc * w).sum() == 0:
+                continue                                 # empty truth: ignored
+            losses.append(1 - fuzzy_j(pn[b, c], gc, w))
+    assert len(losses) == 5                              # image 1 has no lesion
+    got, counted = seg_jaccard_loss(p, t, ign, return_parts=True)
+    assert counted.tolist() == [[True, True, True], [False, True, True]]
+    assert got.item() == pytest.approx(np.mean(losses), rel=1e-5)
+
+
+def test_anatomy_loss_is_per_channel_over_the_batch():
+    a = torch.zeros(2, 6, 6, dtype=torch.long)
+    a[0, :3] = 2                                         # group 2 only in image 0
+    a[1, 3:] = 5                                         # group 5 only in image 1
+    g = torch.Generator().manual_seed(1)
+    p = torch.softmax(torch.randn(2, 8, 6, 6, generator=g), 1)
+    pn, an = p.numpy(), a.numpy()
+    ref = [1 - fuzzy_j(pn[:, c], (an == c).astype(float), np.ones_like(pn[:, c]))
+           for c in (0, 2, 5)]                           # channels 1, 3, 4, 6, 7 absent: ignored
+    got, counted = anatomy_jaccard_loss(p, a, return_parts=True)
+    assert counted.tolist() == [True, False, True, False, False, True, False, False]
+    assert got.item() == pytest.approx(np.mean(ref), rel=1e-5)
+    # batch-wide, not per image: differs from averaging per-image losses
+    per_image = np.mean([anatomy_jaccard_loss(p[i:i + 1], a[i:i + 1]).item() for i in range(2)])
+    assert abs(per_image - got.item()) > 1e-3
+
+
+def test_loss_ignores_exactly_what_the_paper_ignores():
+    t = _seg_example()
+    ign = torch.zeros(2, 8, 8, dtype=torch.bool)
+    ign[1, 5:8, 5:8] = True
+    g = torch.Generator().manual_seed(2)
+    p = torch.softmax(torch.randn(2, 3, 8, 8, generator=g), 1)
+    base = seg_jaccard_loss(p, t, ign).item()
+
+    def changed(channel, where):
+        q = p.clone()
+        q[:, channel][where] = torch.rand(int(where.sum()), generator=g)
+        return seg_jaccard_loss(q, t, ign).item() != pytest.approx(base, abs=1e-7)
+
+    lesion = t == 0
+    everywhere = torch.ones_like(ign)
+    # skin channel: lesion pixels and nevus boxes do not count, other pixels do
+    assert not changed(1, lesion) and not changed(1, ign)
+    assert changed(1, ~lesion & ~ign)
+    # lesion channel: nevus boxes do not count; image 1 has no lesion, so its whole channel is ignored
+    assert not changed(0, ign)
+    img1 = everywhere.clone()
+    img1[0] = False
+    assert not changed(0, img1)
+    img0 = everywhere.clone()
+    img0[1] = False
+    assert changed(0, img0)
+    # non-skin channel: nothing ignored, nevus boxes and lesion pixels included
+    assert changed(2, ign) and changed(2, lesion)
+    # no "nevi" in the JSON: nothing ignored
+    assert not nevi_ignore_mask({}, (4, 4)).any()
+    m = nevi_ignore_mask({"nevi": [{"id": 1, "box": [1, 0, 3, 2]}, {"id": 2, "box": [3.2, 3, 9, 9]}]}, (4, 5))
+    ref = np.zeros((4, 5), bool)
+    ref[0:2, 1:3] = True                                 # x1, y1 exclusive
+    ref[3:4, 3:5] = True                                 # clipped to the image
+    assert (m == ref).all()
+
+
+@pytest.mark.parametrize("case", ["all_nonskin", "all_lesion", "all_ignored", "nevus_everywhere"])
+def test_gradients_are_finite_for_empty_and_full_masks(case):
+    t = torch.full((2, 8, 8), {"all_nonskin": 2, "all_lesion": 0, "all_ignored": 255,
+                               "nevus_everywhere": 1}[case], dtype=torch.long)
+    ign = torch.full((2, 8, 8), case == "nevus_everywhere")
+    a = torch.zeros(2, 8, 8, dtype=torch.long) if case != "all_ignored" else torch.full((2, 8, 8), 255)
+    for scale in (1.0, 1e4):  # also saturated softmax (probabilities exactly 0 and 1)
+        seg = (torch.randn(2, 3, 8, 8) * scale).requires_grad_()
+        anat = (torch.randn(2, 8, 8, 8) * scale).requires_grad_()
+        loss, _ = fuzzy_jaccard_loss(seg, t, anat, a, ign)
+        loss.backward()
+        assert torch.isfinite(loss) and 0 <= loss.item() <= 2
+        assert torch.isfinite(seg.grad).all() and torch.isfinite(anat.grad).all()
+    if case in ("all_ignored", "nevus_everywhere"):
+        seg = torch.zeros(2, 3, 8, 8, requires_grad=True)
+        loss = seg_jaccard_loss(torch.softmax(seg, 1), t, ign)
+        loss.backward()
+        assert loss.item() == 0 and (seg.grad == 0).all()
+
+
+# ---------------------------------------------------------------------------------------
+# Training and checkpoints
+
+
+def test_training_lowers_the_loss(trained):
+    _, ck = trained
+    losses = [h["loss"] for h in ck["history"]]
+    assert len(losses) == 12 and all(np.isfinite(losses))
+    assert np.mean(losses[-3:]) < np.mean(losses[:3]) - 0.02, losses
+
+
+def test_checkpoint_reloads_and_predicts_the_same(trained, synth):
+    path, ck = trained
+    model, ck2 = load_model(path)
+    assert ck2["step"] == ck["step"] and ck2["hparams"]["size"] == 64
+    ref = SegNet(**{k: ck["arch"][k] for k in ("n_seg", "n_anatomy", "width")})
+    ref.load_state_dict(ck["model"])
+    ref.eval()
+    img = read_rgb(next((synth / "images").iterdir()))
+    a = predict(model, img, 64)
+    b = predict(ref, img, 64)
+    assert a.shape == img.shape[:2] and (a == b).all()
+    x = torch.randn(1, 3, 64, 80)
+    with torch.no_grad():
+        assert torch.equal(model(x)["seg"], ref(x)["seg"])
+
+
+def test_interrupted_training_resumes_to_the_same_weights(synth, tmp_path):
+    kw = dict(FAST, size=48, epochs=2, seed=5, batch_size=2)  # 2 batches per epoch
+    full = train(synth, tmp_path / "a.pt", **kw)
+    part = train(synth, tmp_path / "b.pt", max_steps=1, **kw)   # stops inside epoch 1
+    assert part["stopped"] == "max steps" and part["batch_in_epoch"] == 1
+    with pytest.raises(FileExistsError):
+        train(synth, tmp_path / "b.pt", **kw)
+    done = train(synth, tmp_path / "b.pt", resume=True, **kw)
+    assert done["step"] == full["step"] == 4
+    for k, v in full["model"].items():
+        assert torch.allclose(v.float(), done["model"][k].float(), atol=1e-6), k
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".tmp-")]
+
+
+# ---------------------------------------------------------------------------------------
+# Metrics and evaluation
+
+
+def test_jaccard_and_dice_match_hand_computation():
+    p = np.zeros((4, 5), bool)
+    g = np.zeros((4, 5), bool)
+    p[0, :3] = True                  # 3 px
+    g[0, 1:5] = True                 # 4 px, overlap 2, union 5
+    assert metrics.jaccard(p, g) == pytest.approx(2 / 5)
+    assert metrics.dice(p, g) == pytest.approx(4 / 7)
+    empty = np.zeros((4, 5), bool)
+    assert metrics.jaccard(empty, empty) == 1.0 and metrics.dice(empty, empty) == 1.0
+    assert metrics.jaccard(p, empty) == 0.0 and metrics.dice(p, empty) == 0.0
+    assert metrics.jaccard(empty, g) == 0.0 and metrics.dice(empty, g) == 0.0
+    # class maps: lesion / skin / non-skin scored one against the others
+    truth = np.array([[0, 0, 1, 1], [1, 1, 2, 2]], np.uint8)
+    pred = np.array([[0, 1, 1, 1], [1, 1, 1, 1]], np.uint8)
+    s = score(pred, truth, ("lesion", "skin", "nonskin"))
+    assert s["lesion_jaccard"] == pytest.approx(1 / 2) and s["lesion_dice"] == pytest.approx(2 / 3)
+    assert s["skin_jaccard"] == pytest.approx(4 / 7) and s["skin_dice"] == pytest.approx(8 / 11)
+    assert s["nonskin_jaccard"] == 0.0 and s["nonskin_truth_px"] == 2
+
+
+def _fitz_fixture(root, rng):
+    """Three fitz17k folders: lesion + non-skin, lesion without nonskin.png content, no lesion."""
+    cases = {}
+    for k, (les, ns) in enumerate([(True, True), (True, False), (False, False)]):
+        h, w = 60 + 10 * k, 90
+        img = np.clip(rng.normal([190, 140, 120], 8, (h, w, 3)), 0, 255).astype(np.uint8)
+        lm = np.zeros((h, w), np.uint8)
+        nm = np.zeros((h, w), np.uint8)
+        if les:
+            cv2.circle(lm, (45, 30), 12, 255, -1)
+            img[lm > 0] = (90, 50, 40)
+        if ns:
+            nm[:, :20] = 255
+            img[:, :20] = (40, 60, 160)
+        d = root / f"img{k}"
+        d.mkdir(parents=True)
+        cv2.imwrite(str(d / "image.jpg"), img[..., ::-1])
+        write_png(d / "lesions.png", lm)
+        write_png(d / "nonskin.png", nm)
+        cases[f"img{k}"] = (img, lm > 0, nm > 0)
+    return cases
+
+
+def test_evaluate_end_to_end_on_a_fitz17k_folder(trained, tmp_path):
+    from glsynth.cli import main
+    path, _ = trained
+    real = tmp_path / "real"
+    cases = _fitz_fixture(real, np.random.default_rng(0))
+    out = tmp_path / "report"
+    assert main(["evaluate", "--model", str(path), "--real", str(real), "--layout", "fitz17k",
+                 "--out", str(out), "-q", "--threads", "1"]) == 0
+    assert {"report.md", "per_image.csv", "grid.png", "summary.json"} <= set(os.listdir(out))
+    rows = {r["id"]: r for r in csv.DictReader(open(out / "per_image.csv"))}
+    assert set(rows) == set(cases)
+    model, _ = load_model(path)
+    js = {c: [] for c in ("lesion", "skin", "nonskin")}
+    for sid, (_, les, ns) in cases.items():
+        img = read_rgb(real / sid / "image.jpg")
+        pred = predict(model, img, 64)
+        truth = np.where(les, 0, np.where(ns, 2, 1))
+        assert (truth_map(les.shape, {"lesion": real / sid / "lesions.png",
+                                      "nonskin": real / sid / "nonskin.png"}) == truth).all()
+        for k, c in enumerate(js):
+            j = metrics.jaccard(pred == k, truth == k)
+            assert float(rows[sid][f"{c}_jaccard"]) == pytest.approx(j, abs=1e-6)
+            js[c].append(j)
+    assert int(rows["img2"]["lesion_truth_px"]) == 0
+    summary = json.load(open(out / "summary.json"))
+    for c, v in js.items():
+        assert summary["classes"][c]["jaccard_mean"] == pytest.approx(np.mean(v), abs=1e-6)
+        assert summary["classes"][c]["jaccard_std"] == pytest.approx(np.std(v), abs=1e-6)
+    assert summary["classes"]["nonskin"]["n_empty_truth"] == 2
+    report = open(out / "report.md").read()
+    assert "lesion" in report and "± " in report
+    grid = read_rgb(out / "grid.png")
+    assert grid.shape[0] > 3 * 160
+    # pairs layout: lesion only
+    pairs = tmp_path / "pairs"
+    pairs.mkdir()
+    for sid, (img, les, _) in cases.items():
+        if les.any():
+            cv2.imwrite(str(pairs / f"{sid}.png"), img[..., ::-1])
+            write_png(pairs / f"{sid}_segmentation.png", les.astype(np.uint8) * 255)
+    out2 = tmp_path / "report2"
+    assert main(["evaluate", "--model", str(path), "--real", str(pairs), "--layout", "pairs",
+                 "--out", str(out2), "-q"]) == 0
+    s2 = json.load(open(out2 / "summary.json"))
+    assert list(s2["classes"]) == ["lesion"] and s2["n_images"] == 2
+
+
+def test_train_cli(synth, tmp_path):
+    from glsynth.cli import main
+    out = tmp_path / "m.pt"
+    args = ["train", "--data", str(synth), "--data", str(synth), "--out", str(out), "--size", "48",
+            "--epochs", "1", "--batch-size", "8", "-q", "--threads", "1"]
+    assert main(args) == 0
+    _, ck = load_model(out)
+    assert ck["n_samples"] == 8 and ck["step"] == 1
+    assert main(args) == 2                      # exists, no --resume
+    assert main(args + ["--resume"]) == 0       # already finished: nothing to do
+
+
+def test_heldout_procedural_folder_is_consistent(tmp_path):
+    from glsynth.train.evaluate import real_samples
+    from glsynth.train.heldout import procedural_clinical
+    ids = procedural_clinical(tmp_path, n=3, seed=5, size=96)
+    samples = real_samples(tmp_path, "fitz17k")
+    assert sorted(s[0] for s in samples) == ids
+    for sid, img_path, masks in samples:
+        img = read_rgb(img_path)
+        t = truth_map(img.shape[:2], masks)
+        assert (t == 0).any() and (t == 1).any()      # a lesion on some healthy skin
+    assert (truth_map((96, 96), samples[1][2]) == 2).any()   # non-skin around the skin region
