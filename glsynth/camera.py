@@ -136,7 +136,8 @@ class Camera:
         reach in front of the near plane are not clipped: the renderer enables depth
         clamping, and depth values come from the exact view-space z, not the z-buffer.
         The near/far ratio stays <= 1e5, which a 24-bit z-buffer resolves from
-        w = 0.005 to w = 100 on metre-scale bodies.
+        w = 0.005 to w = 100 on metre-scale bodies; a camera closer than 5e-6 of the far
+        distance (~0.01 mm for a body) raises ValueError instead of losing pixels.
         """
         eye = np.asarray(self.eye)
         lo, hi = np.asarray(bounds_min, float), np.asarray(bounds_max, float)
@@ -149,6 +150,11 @@ class Camera:
             closest = min(closest, box_gap)
         if vertices is not None and len(vertices):
             closest = min(closest, float(np.sqrt(((vertices - eye) ** 2).sum(1).min())))
+        if closest < far * 5e-6:
+            raise ValueError(
+                f"camera is {closest:.3g} from the surface, below 5e-6 of the scene's depth "
+                f"range ({far:.3g}): the z-buffer cannot resolve it; move the camera away "
+                f"(e.g. w >= {far * 5e-6:.2g})")
         near = max(closest * 0.5, far * 1e-5)
         return near, max(far, near * 2)
 

@@ -26,6 +26,14 @@ MAX_LABEL_TARGETS = 4
 MAX_SUPERSAMPLE = 8
 
 
+def _half_float_texels(texture):
+    """uint8 texels as float16 in [0, 1], converted in place (no float32 copy: an
+    8192^2 texture would need 800 MB for it)."""
+    half = texture.astype(np.float16)
+    half /= np.float16(255)
+    return half.tobytes()
+
+
 class _MeshOnGPU:
     """Unindexed corner buffer (3 corners per face, in face order) of one mesh."""
 
@@ -52,7 +60,7 @@ class _MeshOnGPU:
             h, w = mesh.texture.shape[:2]
             # Half floats: llvmpipe filters 8-bit textures with 8-bit weights (up to ~2/255
             # off the torch path); float textures are filtered in float.
-            self.texture = ctx.texture((w, h), 3, (mesh.texture / np.float32(255)).astype(np.float16).tobytes(),
+            self.texture = ctx.texture((w, h), 3, _half_float_texels(mesh.texture),
                                        dtype="f2", alignment=2)
             self.texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self.texture.repeat_x = self.texture.repeat_y = False  # clamp, like grid_sample 'border'
@@ -126,11 +134,16 @@ class Renderer:
                     pass
         return drop
 
-    def _label_texture(self, labels: np.ndarray):
-        """Upload an integer label map once; arrays are treated as immutable."""
-        entry = self._label_tex.get(id(labels))
+    def _label_texture(self, labels: np.ndarray, in_use=()):
+        """Upload an integer label map once; arrays are treated as immutable (see
+        ``invalidate``). The cache is least-recently-used and never evicts a texture in
+        ``in_use`` (ids of the maps the current render binds)."""
+        entry = self._label_tex.pop(id(labels), None)
         if entry is not None and entry[0] is labels:
+            self._label_tex[id(labels)] = entry  # most recently used last
             return entry[1]
+        if entry is not None:
+            entry[1].release()
         arr = np.asarray(labels)
         if arr.ndim != 2:
             raise ValueError(f"label texture must be a 2D integer array, got shape {arr.shape}")
@@ -144,8 +157,7 @@ class Renderer:
         tex = self.ctx.texture((arr.shape[1], arr.shape[0]), 1, data.tobytes(), dtype="u2",
                                alignment=2)
         tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        if len(self._label_tex) >= 16:  # bounded cache: drop the oldest
-            old = next(iter(self._label_tex))
+        for old in [k for k in self._label_tex if k not in in_use][:max(len(self._label_tex) - 15, 0)]:
             self._label_tex.pop(old)[1].release()
         self._label_tex[id(labels)] = (labels, tex)
         return tex
@@ -307,10 +319,10 @@ class Renderer:
         if not 1 <= len(items) <= MAX_LABEL_TARGETS:
             raise ValueError(f"1 to {MAX_LABEL_TARGETS} label textures per render, got {len(items)}")
         prog = self.programs["labels"]
-        for i, (_, arr) in enumerate(items):
-            self._label_texture(arr).use(i)
-        for i in range(len(items), MAX_LABEL_TARGETS):  # unused samplers still need a valid texture
-            self._label_texture(items[0][1]).use(i)
+        in_use = {id(arr) for _, arr in items}
+        textures = [self._label_texture(arr, in_use) for _, arr in items]
+        for i in range(MAX_LABEL_TARGETS):  # unused samplers still need a valid texture
+            textures[min(i, len(textures) - 1)].use(i)
         prog["u_count"].value = len(items)
         fbo = self._fbo("labels", *size)
         self._draw(gpu, "labels", fbo, mats)
