@@ -1,7 +1,7 @@
 """Point lights and Phong materials shared by the GL shader and the torch path."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -41,3 +41,23 @@ def ray_face_depth(mesh, cam, rows, cols, face_ids):
     forward = np.asarray(cam.target) - np.asarray(cam.eye)
     forward /= np.linalg.norm(forward)
     return (hit - o) @ forward, hit
+
+
+def skin_sheet(rng, n=40, tex=1024, blur=6.0, amplitude=60.0, nonskin=0):
+    """A body stand-in: a gently curved sheet (a cylinder patch, n x n vertices) with a
+    mottled skin texture, as the duck-typed Body the pipeline expects."""
+    from types import SimpleNamespace
+
+    import cv2
+    u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
+    theta = (u - 0.5) * 1.2
+    verts = np.stack([0.5 * np.sin(theta), v * 0.6, 0.5 * np.cos(theta)], -1).reshape(-1, 3)
+    idx = np.arange(n * n).reshape(n, n)
+    faces = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
+                            np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    noise = cv2.GaussianBlur(rng.normal(size=(tex, tex)).astype(np.float32), (0, 0), blur)
+    texture = np.clip(np.array([205, 160, 135], np.float32) + amplitude * noise[..., None], 0, 255)
+    mesh = gs.Mesh(verts, faces, uvs=np.stack([u, v], -1).reshape(-1, 2),
+                   texture=texture.astype(np.uint8), name="sheet")
+    return SimpleNamespace(mesh=mesh, nonskin=np.full((tex, tex), nonskin, np.uint8), anatomy=None,
+                           nevi=[], meta={})

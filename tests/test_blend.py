@@ -12,25 +12,13 @@ from glsynth.pipeline.bodies import TexelGeometry
 from glsynth.pipeline.features import VGG16Features, make_extractor
 from glsynth.pipeline.paste import PasteSettings, compose_lesion, paste_lesions, warp_lesion
 from glsynth.pipeline.seeding import rng_for
+from shapes import skin_sheet
 
 VIEW = 256
 
 
 def _skin_body(rng, tex=1024):
-    """A gently curved sheet (a cylinder patch) with a mottled skin texture."""
-    n = 40
-    u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
-    theta = (u - 0.5) * 1.2
-    verts = np.stack([0.5 * np.sin(theta), v * 0.6, 0.5 * np.cos(theta)], -1).reshape(-1, 3)
-    idx = np.arange(n * n).reshape(n, n)
-    faces = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
-                            np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
-    uvs = np.stack([u, v], -1).reshape(-1, 2)
-    noise = cv2.GaussianBlur(rng.normal(size=(tex, tex)).astype(np.float32), (0, 0), 6)
-    base = np.array([205, 160, 135], np.float32)
-    texture = np.clip(base + 60 * noise[..., None], 0, 255).astype(np.uint8)
-    mesh = gs.Mesh(verts, faces, uvs=uvs, texture=texture, name="sheet")
-    return SimpleNamespace(mesh=mesh, nonskin=np.zeros((tex, tex), np.uint8), anatomy=None, nevi=[])
+    return skin_sheet(rng, n=40, tex=tex, blur=6, amplitude=60)
 
 
 def _lesion(rng, h=90, w=110):

@@ -29,7 +29,7 @@ import torch
 import glsynth as gs
 from glsynth import diff
 from glsynth.pipeline.bodies import TexelGeometry
-from shapes import plane, sphere
+from shapes import plane, skin_sheet, sphere
 
 # ---------------------------------------------------------------------------------
 # helpers
@@ -350,18 +350,7 @@ def test_invalid_lights_and_materials_are_clear_errors():
 # lesions: pasting extremes, blending at extreme weights and step counts
 # ---------------------------------------------------------------------------------
 def _sheet(rng, tex=256, nonskin=0):
-    n = 24
-    u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
-    theta = (u - 0.5) * 1.2
-    verts = np.stack([0.5 * np.sin(theta), v * 0.6, 0.5 * np.cos(theta)], -1).reshape(-1, 3)
-    idx = np.arange(n * n).reshape(n, n)
-    faces = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
-                            np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
-    noise = cv2.GaussianBlur(rng.normal(size=(tex, tex)).astype(np.float32), (0, 0), 3)
-    texture = np.clip(np.array([205, 160, 135], np.float32) + 50 * noise[..., None], 0, 255).astype(np.uint8)
-    mesh = gs.Mesh(verts, faces, uvs=np.stack([u, v], -1).reshape(-1, 2), texture=texture, name="sheet")
-    return SimpleNamespace(mesh=mesh, nonskin=np.full((tex, tex), nonskin, np.uint8), anatomy=None,
-                           nevi=[], meta={})
+    return skin_sheet(rng, n=24, tex=tex, blur=3, amplitude=50, nonskin=nonskin)
 
 
 def _blob_lesion(rng, h=40, w=48, id_="blob"):

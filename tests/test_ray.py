@@ -15,7 +15,7 @@ ray = pytest.importorskip("ray")
 import glsynth as gs  # noqa: E402
 from glsynth.config import load_config  # noqa: E402
 from glsynth.pipeline import ray_executor  # noqa: E402
-from test_pipeline import SMALL  # noqa: E402  (the reduced end-to-end config)
+from test_pipeline import SMALL, _dataset_bytes  # noqa: E402  (the reduced end-to-end config)
 
 pytestmark = pytest.mark.slow
 
@@ -42,17 +42,6 @@ def reference(tmp_path_factory):
     out = tmp_path_factory.mktemp("local")
     gs.pipeline.generate(small_config(), out, workers=1)
     return out
-
-
-def _dataset_bytes(out):
-    files = {}
-    for root, _, names in os.walk(out):
-        for n in names:
-            rel = os.path.relpath(os.path.join(root, n), out)
-            if rel != "manifest.json" and not rel.startswith("bodies"):
-                with open(os.path.join(root, n), "rb") as fh:
-                    files[rel] = fh.read()
-    return files
 
 
 def _assert_same(reference, out):

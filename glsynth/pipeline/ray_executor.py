@@ -20,7 +20,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import time
 import uuid
 from collections import OrderedDict, deque
 

@@ -8,7 +8,6 @@ layers below; ``render_view`` renders only the passes the requested outputs need
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import cv2
