@@ -91,6 +91,7 @@ class ViewsConfig:
     # Richer lighting (defaults off: the paper's single light, Lambert diffuse).
     wrap: list = field(default_factory=lambda: [0.0, 0.0])       # material wrap lighting
     flash: float = 0.0                # probability of a flash light at the camera
+    shadows: bool = False             # soft shadows from the main (room) light
     flash_diffuse: list = field(default_factory=lambda: [0.2, 0.6])
     flash_specular: list = field(default_factory=lambda: [0.0, 0.1])
     ambient_tint: float = 0.0         # 0..1: tint the ambient light by the background's mean colour

@@ -6,6 +6,9 @@
 // wrap (material wrap lighting, 0 = Lambert) lets diffuse light reach past the terminator.
 // Colours are display-referred: lighting acts on the sRGB-encoded texture values
 // directly, as in the DermSynth3D paper's PyTorch3D renderer. Alpha is coverage.
+// With u_shadows, the diffuse and specular terms of light 0 (the main light) are scaled
+// by its visibility from a shadow map (5x5 percentage-closer filtering: soft edges);
+// the torch path has no shadows, and blending never turns them on.
 #define MAX_LIGHTS 8
 uniform sampler2D u_texture;
 uniform vec3 u_eye;
@@ -16,11 +19,38 @@ uniform vec3 u_light_diffuse[MAX_LIGHTS];
 uniform vec3 u_light_specular[MAX_LIGHTS];
 uniform vec3 u_mat_specular;
 uniform float u_shininess;
-uniform float u_wrap;   // 0 unless set (glsynth.lighting.material_uniforms)
+uniform float u_wrap;   // Material.wrap (0: Lambert)
+uniform bool u_shadows;
+uniform sampler2D u_shadow_map;     // distance from light 0 to the nearest surface
+uniform mat4 u_light_viewproj;
+uniform float u_shadow_texel;  // shadow-map texel width per unit distance from the light
 
 #include "surface.glsl"
 
 out vec4 out_color;
+
+float main_light_visibility(vec3 world, vec3 n) {
+    if (!u_shadows) return 1.0;
+    // Normal-offset lookup plus a depth bias, both a couple of shadow texels wide at
+    // this distance: without them surfaces shadow themselves in stripes ("acne").
+    vec3 to_light = u_light_pos[0] - world;
+    float texel_here = u_shadow_texel * length(to_light);
+    float cos_t = clamp(abs(dot(n, normalize(to_light))), 0.1, 1.0);
+    float slope = sqrt(1.0 - cos_t * cos_t) / cos_t;  // the 5x5 filter reaches 2 texels
+    float bias = texel_here * (1.5 + 2.5 * slope);
+    world += n * 1.5 * texel_here;
+    vec4 clip = u_light_viewproj * vec4(world, 1.0);
+    if (clip.w <= 0.0) return 1.0;
+    vec2 at = clip.xy / clip.w * 0.5 + 0.5;
+    if (any(lessThan(at, vec2(0.0))) || any(greaterThan(at, vec2(1.0)))) return 1.0;
+    float dist = length(world - u_light_pos[0]) - bias;
+    vec2 texel = 1.0 / vec2(textureSize(u_shadow_map, 0));
+    float lit = 0.0;
+    for (int y = -2; y <= 2; ++y)
+        for (int x = -2; x <= 2; ++x)
+            lit += dist <= texture(u_shadow_map, at + vec2(x, y) * texel).r ? 1.0 : 0.0;
+    return lit / 25.0;
+}
 
 void main() {
     vec3 b = surface_bary();
@@ -38,11 +68,13 @@ void main() {
         vec3 to_light = u_light_pos[i] - world;
         vec3 l = to_light / max(length(to_light), 1e-20);
         float cos_nl = dot(n, l);
-        light_sum += u_light_ambient[i] + u_light_diffuse[i] * max((cos_nl + u_wrap) / (1.0 + u_wrap), 0.0);
+        float vis = i == 0 ? main_light_visibility(world, n) : 1.0;
+        light_sum += u_light_ambient[i]
+                   + vis * u_light_diffuse[i] * max((cos_nl + u_wrap) / (1.0 + u_wrap), 0.0);
         if (cos_nl > 0.0) {
             vec3 r = 2.0 * cos_nl * n - l;
             float rv = max(dot(r, view_dir), 0.0);
-            spec_sum += u_light_specular[i] * u_mat_specular * pow(rv, u_shininess);
+            spec_sum += vis * u_light_specular[i] * u_mat_specular * pow(rv, u_shininess);
         }
     }
     out_color = vec4(clamp(texel * light_sum + spec_sum, 0.0, 1.0), 1.0);

@@ -100,6 +100,8 @@ class Renderer:
         self.programs["uvspace"] = self.ctx.program(
             vertex_shader=shader_source("uvspace.vert"), geometry_shader=geom,
             fragment_shader=shader_source("gbuffer.frag"))
+        self.programs["shadow"] = self.ctx.program(vertex_shader=shader_source("shadow.vert"),
+                                                   fragment_shader=shader_source("shadow.frag"))
         self._downsample = self.ctx.program(vertex_shader=shader_source("fullscreen.vert"),
                                             fragment_shader=shader_source("downsample.frag"))
         self._empty_vao = self.ctx.vertex_array(self._downsample, [])
@@ -108,6 +110,7 @@ class Renderer:
         self._fbos = {}
         for i in range(MAX_LABEL_TARGETS):
             self.programs["labels"][f"u_labels{i}"] = i
+        self.programs["rgb"]["u_shadow_map"] = 1
 
     @property
     def info(self) -> dict:
@@ -189,6 +192,10 @@ class Renderer:
             colors = [ctx.renderbuffer((w, h), 1, dtype="u2") for _ in range(MAX_LABEL_TARGETS)]
         elif kind == "rgb":
             colors = [ctx.texture((w, h), 4, dtype="f4")]
+        elif kind == "shadow":
+            colors = [ctx.texture((w, h), 1, dtype="f4")]
+            colors[0].filter = (moderngl.NEAREST, moderngl.NEAREST)
+            colors[0].repeat_x = colors[0].repeat_y = False
         elif kind == "display":  # 8-bit, for showing on screen (previewer)
             colors = [ctx.renderbuffer((w, h), 4, dtype="f1")]
         elif kind == "resolve":
@@ -201,7 +208,8 @@ class Renderer:
 
     # ---- rendering ----------------------------------------------------------------
     def render(self, mesh: Mesh, camera: Camera, passes=("gbuffer", "rgb"), lights=None,
-               material=None, label_texture=None, label_textures=None, supersample=1):
+               material=None, label_texture=None, label_textures=None, supersample=1,
+               shadows=False):
         """Render ``mesh`` from ``camera``.
 
         passes: any of 'gbuffer', 'rgb', 'labels'. Returns a dict of numpy arrays
@@ -209,7 +217,8 @@ class Renderer:
           gbuffer: face_id int32 (-1 background), bary float32 x3, depth float32
                    (view-space, > 0; -1 background), uv float32 x2
           rgb:     rgb float32 x3 in [0, 1], alpha float32 (coverage, fractional with
-                   supersampling)
+                   supersampling); ``shadows=True`` first renders a shadow map from the
+                   first light (soft shadows on its diffuse and specular terms)
           labels:  labels uint16 (from ``label_texture``) or one uint16 array per name
                    of ``label_textures`` (at most 4 per call)
         Vertex/face labels (anatomy) come from the G-buffer: see ``vertex_label_image``.
@@ -218,10 +227,10 @@ class Renderer:
         # current since the last call: always draw in ours.
         with self.ctx:
             return self._render(mesh, camera, tuple(passes), lights, material,
-                                label_texture, label_textures, supersample)
+                                label_texture, label_textures, supersample, shadows)
 
     def _render(self, mesh, camera, passes, lights, material, label_texture,
-                label_textures, supersample):
+                label_textures, supersample, shadows=False):
         unknown = set(passes) - set(PASSES)
         if unknown:
             raise ValueError(f"unknown pass(es) {sorted(unknown)}; choose from {PASSES}")
@@ -237,6 +246,7 @@ class Renderer:
         if "rgb" in passes:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
+            self._shadow_map(gpu, mesh, camera, lights, shadows)
             out.update(self._render_rgb(gpu, mats, camera, lights, material, supersample, size))
         if "labels" in passes:
             out.update(self._render_labels(gpu, mats, label_texture, label_textures, size))
@@ -250,6 +260,30 @@ class Renderer:
             near, far = camera.clip_planes(*mesh.bounds, vertices=mesh.vertices)
         return {"u_view": camera.view_matrix().T.astype("f4").tobytes(),
                 "u_proj": camera.projection_matrix(near, far).T.astype("f4").tobytes()}
+
+    SHADOW_SIZE = 1024
+
+    def _shadow_map(self, gpu, mesh, camera, lights, enabled):
+        """Render the main light's shadow map (only when shadows are on) and point the
+        Phong program at it."""
+        prog = self.programs["rgb"]
+        light = (lights or [PointLight(camera.eye)])[0]
+        target = np.asarray(camera.target)
+        if not enabled or np.linalg.norm(np.asarray(light.position) - target) < 1e-9:
+            prog["u_shadows"].value = False
+            return
+        n = self.SHADOW_SIZE
+        light_cam = Camera.look_at(light.position, target, fov_deg=100.0, width=n, height=n)
+        mats = self._matrices(mesh, light_cam)
+        self.programs["shadow"]["u_light"].value = tuple(light.position)
+        fbo = self._fbo("shadow", n, n)
+        self._draw(gpu, "shadow", fbo, mats, clear=(3.0e38, 0.0, 0.0, 0.0))
+        fbo.color_attachments[0].use(1)
+        near, far = light_cam.clip_planes(*mesh.bounds, vertices=mesh.vertices)
+        viewproj = light_cam.projection_matrix(near, far) @ light_cam.view_matrix()
+        prog["u_light_viewproj"].write(viewproj.T.astype("f4").tobytes())
+        prog["u_shadow_texel"].value = 2 * np.tan(np.radians(light_cam.fov_deg) / 2) / n
+        prog["u_shadows"].value = True
 
     def _set_shading(self, gpu, camera, lights, material):
         """Lights, material, eye and texture of the Phong program (default light: the
@@ -390,6 +424,7 @@ class Renderer:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
             gpu = self._gpu_mesh(mesh)
+            self._shadow_map(gpu, mesh, camera, lights, False)
             self._set_shading(gpu, camera, lights, material)
             self.ctx.enable(moderngl.DEPTH_TEST)
             self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)

@@ -117,7 +117,8 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     if nevi_map is not None:
         labels["nevi"] = nevi_map
     out = renderer.render(mesh_b, scene.camera, passes=passes_for(outputs), lights=scene.lights,
-                          material=scene.material, label_textures=labels, supersample=v.supersample)
+                          material=scene.material, label_textures=labels, supersample=v.supersample,
+                          shadows=v.shadows)
     body_px = out["face_id"] >= 0
     lesion = body_px & (out["instances"] > 0)
     nonskin = body_px & (out["nonskin"] > 0) & ~lesion
