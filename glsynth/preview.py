@@ -19,6 +19,7 @@ it as a PNG; ``--keys`` replays key presses first (one per frame), e.g. ``--keys
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import logging
@@ -27,7 +28,6 @@ import os
 import sys
 import time
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -437,7 +437,9 @@ class Viewer:
         outputs = ("semantic", "instances", "anatomy", "depth", "face_id", "uv")
         if with_rgb:
             outputs += ("rgb", "normals")
-        v = SimpleNamespace(min_skin=-1.0, min_lesion=-1.0, supersample=1)
+        # the view generator's settings, minus its rejection rules: every view is shown
+        from .config import ViewsConfig
+        v = dataclasses.replace(ViewsConfig(), min_skin=0.0, min_lesion=0.0, supersample=1)
         layers = V.render_view(self.renderer, self.scene.body, self.scene.mesh, self.scene.instances,
                                None, self.view_scene(), v, outputs)
         self._layers = (key, layers)
