@@ -40,3 +40,12 @@ def shader_source(name: str) -> str:
         else:
             lines.append(line)
     return "\n".join(lines) + "\n"
+
+
+def with_defines(source: str, **defines) -> str:
+    """``source`` with ``#define NAME value`` lines inserted after its #version line."""
+    head, _, rest = source.partition("\n")
+    if not head.startswith("#version"):
+        raise ValueError("shader source must start with a #version line")
+    lines = "".join(f"#define {k} {int(v) if isinstance(v, bool) else v}\n" for k, v in defines.items())
+    return f"{head}\n{lines}{rest}"

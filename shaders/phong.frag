@@ -6,31 +6,41 @@
 // wrap (material wrap lighting, 0 = Lambert) lets diffuse light reach past the terminator.
 // Colours are display-referred: lighting acts on the sRGB-encoded texture values
 // directly, as in the DermSynth3D paper's PyTorch3D renderer. Alpha is coverage.
-// With u_shadows, the diffuse and specular terms of light 0 (the main light) are scaled
+// With SHADOWS, the diffuse and specular terms of light 0 (the main light) are scaled
 // by its visibility from a shadow map (5x5 percentage-closer filtering: soft edges);
 // the torch path has no shadows, and blending never turns them on.
-#define MAX_LIGHTS 8
+//
+// The renderer compiles one program per light count and shadow setting (NUM_LIGHTS,
+// SHADOWS are prepended as #defines): llvmpipe runs a loop with a uniform trip count
+// over uniform arrays 2.4x slower than a fixed one, and evaluates a branch it cannot
+// prove uniform on every pixel.
+#ifndef NUM_LIGHTS
+#define NUM_LIGHTS 1
+#endif
+#ifndef SHADOWS
+#define SHADOWS 0
+#endif
 uniform sampler2D u_texture;
 uniform vec3 u_eye;
-uniform int u_num_lights;
-uniform vec3 u_light_pos[MAX_LIGHTS];
-uniform vec3 u_light_ambient[MAX_LIGHTS];
-uniform vec3 u_light_diffuse[MAX_LIGHTS];
-uniform vec3 u_light_specular[MAX_LIGHTS];
+uniform vec3 u_light_pos[NUM_LIGHTS];
+uniform vec3 u_light_ambient[NUM_LIGHTS];
+uniform vec3 u_light_diffuse[NUM_LIGHTS];
+uniform vec3 u_light_specular[NUM_LIGHTS];
 uniform vec3 u_mat_specular;
 uniform float u_shininess;
 uniform float u_wrap;   // Material.wrap (0: Lambert)
-uniform bool u_shadows;
+#if SHADOWS
 uniform sampler2D u_shadow_map;     // distance from light 0 to the nearest surface
 uniform mat4 u_light_viewproj;
 uniform float u_shadow_texel;  // shadow-map texel width per unit distance from the light
+#endif
 
 #include "surface.glsl"
 
 out vec4 out_color;
 
+#if SHADOWS
 float main_light_visibility(vec3 world, vec3 n) {
-    if (!u_shadows) return 1.0;
     // Normal-offset lookup plus a depth bias, both a couple of shadow texels wide at
     // this distance: without them surfaces shadow themselves in stripes ("acne").
     vec3 to_light = u_light_pos[0] - world;
@@ -51,6 +61,7 @@ float main_light_visibility(vec3 world, vec3 n) {
             lit += dist <= texture(u_shadow_map, at + vec2(x, y) * texel).r ? 1.0 : 0.0;
     return lit / 25.0;
 }
+#endif
 
 void main() {
     vec3 b = surface_bary();
@@ -64,11 +75,15 @@ void main() {
     vec3 view_dir = to_eye / max(length(to_eye), 1e-20);
     vec3 light_sum = vec3(0.0);
     vec3 spec_sum = vec3(0.0);
-    for (int i = 0; i < u_num_lights; ++i) {
+    for (int i = 0; i < NUM_LIGHTS; ++i) {
         vec3 to_light = u_light_pos[i] - world;
         vec3 l = to_light / max(length(to_light), 1e-20);
         float cos_nl = dot(n, l);
+#if SHADOWS
         float vis = i == 0 ? main_light_visibility(world, n) : 1.0;
+#else
+        const float vis = 1.0;
+#endif
         light_sum += u_light_ambient[i]
                    + vis * u_light_diffuse[i] * max((cos_nl + u_wrap) / (1.0 + u_wrap), 0.0);
         if (cos_nl > 0.0) {

@@ -14,9 +14,9 @@ import moderngl
 import numpy as np
 
 from ..camera import Camera
-from ..lighting import Material, PointLight, check_lights, MAX_LIGHTS
+from ..lighting import Material, PointLight, check_lights
 from ..mesh import Mesh
-from ..resources import shader_source
+from ..resources import shader_source, with_defines
 from .context import create_context
 
 log = logging.getLogger(__name__)
@@ -35,26 +35,22 @@ def _half_float_texels(texture):
 
 
 class _MeshOnGPU:
-    """Unindexed corner buffer (3 corners per face, in face order) of one mesh."""
+    """Unindexed corner buffer (3 corners per face, in face order) of one mesh, with a
+    vertex array per program made on first use."""
 
-    def __init__(self, ctx, mesh: Mesh, programs):
+    _LAYOUT = {"in_position": "3f", "in_normal": "3f", "in_uv": "2f"}
+
+    def __init__(self, ctx, mesh: Mesh):
         corners = mesh.faces.reshape(-1)
         pos = mesh.vertices[corners].astype(np.float32)
         nrm = mesh.vertex_normals[corners].astype(np.float32)
         uv = (mesh.uvs[mesh.face_uvs.reshape(-1)] if mesh.uvs is not None
               else np.zeros((len(corners), 2))).astype(np.float32)
         data = np.concatenate([pos, nrm, uv], axis=1)
+        self.ctx = ctx
         self.vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
         self.count = len(corners)
         self.vaos = {}
-        for name, prog in programs.items():
-            attrs = [a for a in ("in_position", "in_normal", "in_uv") if a in prog]
-            fmt = " ".join("3f" if a != "in_uv" else "2f" for a in attrs)
-            # skip unused attributes so that each program reads only what it needs
-            layout = {"in_position": "3f", "in_normal": "3f", "in_uv": "2f"}
-            fmt = " ".join(layout[a] if a in attrs else layout[a].replace("f", "x4")
-                           for a in ("in_position", "in_normal", "in_uv"))
-            self.vaos[name] = ctx.vertex_array(prog, [(self.vbo, fmt, *attrs)])
         self.texture = None
         if mesh.texture is not None:
             h, w = mesh.texture.shape[:2]
@@ -64,6 +60,15 @@ class _MeshOnGPU:
                                        dtype="f2", alignment=2)
             self.texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self.texture.repeat_x = self.texture.repeat_y = False  # clamp, like grid_sample 'border'
+
+    def vao(self, name, prog):
+        vao = self.vaos.get(name)
+        if vao is None:
+            # skip unused attributes so that each program reads only what it needs
+            attrs = [a for a in self._LAYOUT if a in prog]
+            fmt = " ".join(f if a in attrs else f.replace("f", "x4") for a, f in self._LAYOUT.items())
+            vao = self.vaos[name] = self.ctx.vertex_array(prog, [(self.vbo, fmt, *attrs)])
+        return vao
 
     def release(self):
         for vao in self.vaos.values():
@@ -95,8 +100,7 @@ class Renderer:
         self.programs = {
             name: self.ctx.program(vertex_shader=vert, geometry_shader=geom,
                                    fragment_shader=shader_source(frag))
-            for name, frag in (("gbuffer", "gbuffer.frag"), ("rgb", "phong.frag"),
-                               ("labels", "labels.frag"))}
+            for name, frag in (("gbuffer", "gbuffer.frag"), ("labels", "labels.frag"))}
         self.programs["uvspace"] = self.ctx.program(
             vertex_shader=shader_source("uvspace.vert"), geometry_shader=geom,
             fragment_shader=shader_source("gbuffer.frag"))
@@ -110,7 +114,19 @@ class Renderer:
         self._fbos = {}
         for i in range(MAX_LABEL_TARGETS):
             self.programs["labels"][f"u_labels{i}"] = i
-        self.programs["rgb"]["u_shadow_map"] = 1
+
+    def _phong(self, n_lights: int, shadows: bool) -> str:
+        """Name of the shading program for this light count and shadow setting, compiled
+        on first use (see phong.frag for why the count is a compile-time constant)."""
+        name = f"rgb{n_lights}{'s' if shadows else ''}"
+        if name not in self.programs:
+            frag = with_defines(shader_source("phong.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows)
+            prog = self.ctx.program(vertex_shader=shader_source("mesh.vert"),
+                                    geometry_shader=shader_source("mesh.geom"), fragment_shader=frag)
+            if shadows:
+                prog["u_shadow_map"] = 1
+            self.programs[name] = prog
+        return name
 
     @property
     def info(self) -> dict:
@@ -123,7 +139,7 @@ class Renderer:
             return entry[1]
         if entry is not None:
             entry[1].release()
-        gpu = _MeshOnGPU(self.ctx, mesh, self.programs)
+        gpu = _MeshOnGPU(self.ctx, mesh)
         self._meshes[id(mesh)] = (weakref.ref(mesh, self._drop_mesh(id(mesh))), gpu)
         return gpu
 
@@ -246,8 +262,8 @@ class Renderer:
         if "rgb" in passes:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
-            self._shadow_map(gpu, mesh, camera, lights, shadows)
-            out.update(self._render_rgb(gpu, mats, camera, lights, material, supersample, size))
+            out.update(self._render_rgb(gpu, mesh, mats, camera, lights, material, supersample,
+                                        size, shadows))
         if "labels" in passes:
             out.update(self._render_labels(gpu, mats, label_texture, label_textures, size))
         return out
@@ -263,15 +279,22 @@ class Renderer:
 
     SHADOW_SIZE = 1024
 
-    def _shadow_map(self, gpu, mesh, camera, lights, enabled):
-        """Render the main light's shadow map (only when shadows are on) and point the
-        Phong program at it."""
-        prog = self.programs["rgb"]
-        light = (lights or [PointLight(camera.eye)])[0]
+    def _shading_program(self, gpu, mesh, camera, lights, material, shadows):
+        """The Phong program for these lights, with lights, material, eye, texture and
+        (when ``shadows`` and the main light is away from the look-at point) the main
+        light's shadow map set up."""
+        lights = check_lights([PointLight(camera.eye)] if lights is None else lights)
         target = np.asarray(camera.target)
-        if not enabled or np.linalg.norm(np.asarray(light.position) - target) < 1e-9:
-            prog["u_shadows"].value = False
-            return
+        shadows = bool(shadows and np.linalg.norm(np.asarray(lights[0].position) - target) >= 1e-9)
+        name = self._phong(len(lights), shadows)
+        if shadows:
+            self._shadow_map(gpu, mesh, camera, lights[0], self.programs[name])
+        self._set_shading(self.programs[name], gpu, camera, lights, material)
+        return name
+
+    def _shadow_map(self, gpu, mesh, camera, light, prog):
+        """Render ``light``'s shadow map and point the Phong program ``prog`` at it."""
+        target = np.asarray(camera.target)
         n = self.SHADOW_SIZE
         light_cam = Camera.look_at(light.position, target, fov_deg=100.0, width=n, height=n)
         mats = self._matrices(mesh, light_cam)
@@ -283,23 +306,19 @@ class Renderer:
         viewproj = light_cam.projection_matrix(near, far) @ light_cam.view_matrix()
         prog["u_light_viewproj"].write(viewproj.T.astype("f4").tobytes())
         prog["u_shadow_texel"].value = 2 * np.tan(np.radians(light_cam.fov_deg) / 2) / n
-        prog["u_shadows"].value = True
 
-    def _set_shading(self, gpu, camera, lights, material):
-        """Lights, material, eye and texture of the Phong program (default light: the
-        paper's blending light at the camera)."""
-        lights = check_lights([PointLight(camera.eye)] if lights is None else lights)
+    @staticmethod
+    def _set_shading(prog, gpu, camera, lights, material):
+        """Lights, material, eye and texture of a Phong program made for len(lights)."""
         material = material or Material()
-        prog = self.programs["rgb"]
-        pad = [(0.0, 0.0, 0.0)] * (MAX_LIGHTS - len(lights))
-        prog["u_num_lights"].value = len(lights)
         for key, attr in (("u_light_pos", "position"), ("u_light_ambient", "ambient"),
                           ("u_light_diffuse", "diffuse"), ("u_light_specular", "specular")):
-            prog[key].write(np.array([getattr(l, attr) for l in lights] + pad, "f4").tobytes())
-        prog["u_mat_specular"].value = material.specular
-        prog["u_shininess"].value = material.shininess
-        prog["u_wrap"].value = material.wrap
-        prog["u_eye"].value = tuple(camera.eye)
+            if key in prog:  # a term that is zero for every pixel may be compiled out
+                prog[key].write(np.array([getattr(l, attr) for l in lights], "f4").tobytes())
+        for key, value in (("u_mat_specular", material.specular), ("u_shininess", material.shininess),
+                           ("u_wrap", material.wrap), ("u_eye", tuple(camera.eye))):
+            if key in prog:
+                prog[key].value = value
         gpu.texture.use(0)
         prog["u_texture"].value = 0
 
@@ -321,13 +340,13 @@ class Renderer:
         return {"face_id": face, "bary": np.ascontiguousarray(bd[..., :3]),
                 "depth": np.ascontiguousarray(bd[..., 3]), "uv": uv}
 
-    def _render_rgb(self, gpu, mats, camera, lights, material, supersample, size):
+    def _render_rgb(self, gpu, mesh, mats, camera, lights, material, supersample, size, shadows):
         k = int(supersample)
         if not 1 <= k <= MAX_SUPERSAMPLE:
             raise ValueError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
-        self._set_shading(gpu, camera, lights, material)
+        prog = self._shading_program(gpu, mesh, camera, lights, material, shadows)
         fbo = self._fbo("rgb", size[0] * k, size[1] * k)
-        self._draw(gpu, "rgb", fbo, mats)
+        self._draw(gpu, prog, fbo, mats)
         if k > 1:
             src = fbo.color_attachments[0]
             fbo = self._fbo("resolve", *size)
@@ -369,7 +388,7 @@ class Renderer:
         fbo.use()
         fbo.viewport = (0, 0, *fbo.size)
         fbo.clear(*clear, depth=1.0)
-        gpu.vaos[prog_name].render(moderngl.TRIANGLES, vertices=gpu.count)
+        gpu.vao(prog_name, prog).render(moderngl.TRIANGLES, vertices=gpu.count)
 
     def render_uv_space(self, mesh: Mesh, width: int, height: int) -> dict:
         """Rasterise ``mesh`` in texture space at ``width`` x ``height`` texels.
@@ -424,12 +443,11 @@ class Renderer:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
             gpu = self._gpu_mesh(mesh)
-            self._shadow_map(gpu, mesh, camera, lights, False)
-            self._set_shading(gpu, camera, lights, material)
+            prog = self._shading_program(gpu, mesh, camera, lights, material, False)
             self.ctx.enable(moderngl.DEPTH_TEST)
             self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
             fbo = self._fbo("rgb" if dtype == "f4" else "display", camera.width, camera.height)
-            self._draw(gpu, "rgb", fbo, self._matrices(mesh, camera))
+            self._draw(gpu, prog, fbo, self._matrices(mesh, camera))
             return fbo
 
 
