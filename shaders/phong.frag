@@ -7,7 +7,7 @@
 // Colours are display-referred: lighting acts on the sRGB-encoded texture values
 // directly, as in the DermSynth3D paper's PyTorch3D renderer. Alpha is coverage.
 // With SHADOWS, the diffuse and specular terms of light 0 (the main light) are scaled
-// by its visibility from a shadow map (5x5 percentage-closer filtering: soft edges);
+// by its visibility from a shadow map (4x4-texel percentage-closer filter: soft edges);
 // the torch path has no shadows, and blending never turns them on.
 //
 // The renderer compiles one program per light count and shadow setting (NUM_LIGHTS,
@@ -30,7 +30,7 @@ uniform vec3 u_mat_specular;
 uniform float u_shininess;
 uniform float u_wrap;   // Material.wrap (0: Lambert)
 #if SHADOWS
-uniform sampler2D u_shadow_map;     // distance from light 0 to the nearest surface
+uniform sampler2DShadow u_shadow_map;  // depth buffer seen from light 0 (compare <=)
 uniform mat4 u_light_viewproj;
 uniform float u_shadow_texel;  // shadow-map texel width per unit distance from the light
 #endif
@@ -41,25 +41,27 @@ out vec4 out_color;
 
 #if SHADOWS
 float main_light_visibility(vec3 world, vec3 n) {
-    // Normal-offset lookup plus a depth bias, both a couple of shadow texels wide at
-    // this distance: without them surfaces shadow themselves in stripes ("acne").
+    // Normal-offset lookup plus a bias towards the light, both a couple of shadow texels
+    // wide at this distance: without them surfaces shadow themselves in stripes ("acne").
     vec3 to_light = u_light_pos[0] - world;
-    float texel_here = u_shadow_texel * length(to_light);
-    float cos_t = clamp(abs(dot(n, normalize(to_light))), 0.1, 1.0);
-    float slope = sqrt(1.0 - cos_t * cos_t) / cos_t;  // the 5x5 filter reaches 2 texels
+    float dist = length(to_light);
+    float texel_here = u_shadow_texel * dist;
+    float cos_t = clamp(abs(dot(n, to_light / dist)), 0.1, 1.0);
+    float slope = sqrt(1.0 - cos_t * cos_t) / cos_t;  // the filter reaches 2 texels
     float bias = texel_here * (1.5 + 2.5 * slope);
-    world += n * 1.5 * texel_here;
-    vec4 clip = u_light_viewproj * vec4(world, 1.0);
+    vec3 p = world + n * 1.5 * texel_here + to_light / dist * bias;
+    vec4 clip = u_light_viewproj * vec4(p, 1.0);
     if (clip.w <= 0.0) return 1.0;
-    vec2 at = clip.xy / clip.w * 0.5 + 0.5;
-    if (any(lessThan(at, vec2(0.0))) || any(greaterThan(at, vec2(1.0)))) return 1.0;
-    float dist = length(world - u_light_pos[0]) - bias;
+    vec3 at = clip.xyz / clip.w * 0.5 + 0.5;
+    if (any(lessThan(at.xy, vec2(0.0))) || any(greaterThan(at.xy, vec2(1.0)))) return 1.0;
+    // Four depth-compare lookups, each filtered bilinearly by the sampler over 2x2
+    // texels: a smooth 4x4-texel percentage-closer filter for four fetches.
     vec2 texel = 1.0 / vec2(textureSize(u_shadow_map, 0));
-    float lit = 0.0;
-    for (int y = -2; y <= 2; ++y)
-        for (int x = -2; x <= 2; ++x)
-            lit += dist <= texture(u_shadow_map, at + vec2(x, y) * texel).r ? 1.0 : 0.0;
-    return lit / 25.0;
+    float ref = min(at.z, 1.0);
+    return 0.25 * (texture(u_shadow_map, vec3(at.xy + vec2(-1.0, -1.0) * texel, ref))
+                 + texture(u_shadow_map, vec3(at.xy + vec2( 1.0, -1.0) * texel, ref))
+                 + texture(u_shadow_map, vec3(at.xy + vec2(-1.0,  1.0) * texel, ref))
+                 + texture(u_shadow_map, vec3(at.xy + vec2( 1.0,  1.0) * texel, ref)));
 }
 #endif
 

@@ -1,7 +1,4 @@
 #version 330 core
-in float v_dist;
-out float out_dist;
-
+// Depth only: the shadow map is the depth attachment.
 void main() {
-    out_dist = v_dist;
 }

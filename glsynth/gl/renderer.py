@@ -208,10 +208,11 @@ class Renderer:
             colors = [ctx.renderbuffer((w, h), 1, dtype="u2") for _ in range(MAX_LABEL_TARGETS)]
         elif kind == "rgb":
             colors = [ctx.texture((w, h), 4, dtype="f4")]
-        elif kind == "shadow":
-            colors = [ctx.texture((w, h), 1, dtype="f4")]
-            colors[0].filter = (moderngl.NEAREST, moderngl.NEAREST)
-            colors[0].repeat_x = colors[0].repeat_y = False
+        elif kind == "shadow":  # depth only, sampled with comparison + bilinear filtering
+            colors, depth = [], ctx.depth_texture((w, h))
+            depth.compare_func = "<="
+            depth.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            depth.repeat_x = depth.repeat_y = False
         elif kind == "display":  # 8-bit, for showing on screen (previewer)
             colors = [ctx.renderbuffer((w, h), 4, dtype="f1")]
         elif kind == "resolve":
@@ -298,10 +299,9 @@ class Renderer:
         n = self.SHADOW_SIZE
         light_cam = Camera.look_at(light.position, target, fov_deg=100.0, width=n, height=n)
         mats = self._matrices(mesh, light_cam)
-        self.programs["shadow"]["u_light"].value = tuple(light.position)
         fbo = self._fbo("shadow", n, n)
-        self._draw(gpu, "shadow", fbo, mats, clear=(3.0e38, 0.0, 0.0, 0.0))
-        fbo.color_attachments[0].use(1)
+        self._draw(gpu, "shadow", fbo, mats)
+        fbo.depth_attachment.use(1)
         near, far = light_cam.clip_planes(*mesh.bounds, vertices=mesh.vertices)
         viewproj = light_cam.projection_matrix(near, far) @ light_cam.view_matrix()
         prog["u_light_viewproj"].write(viewproj.T.astype("f4").tobytes())

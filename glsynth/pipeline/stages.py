@@ -161,12 +161,17 @@ class Generate2DViews(_Stage):
         bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc="views", unit="img",
                    disable=not progress)
         rejected = {}
-        for body_id, j in todo:
-            state = self._body_state(body_id)
-            t0 = time.perf_counter()
-            self._one_view(self.renderer, body_id, *state, j, rejected)
-            self._time("views", time.perf_counter() - t0)
-            bar.update(1)
+        # Compositing, the camera model and encoding run in a thread while the next view
+        # renders (OpenCV, zlib and numpy release the GIL): ~1.4x more samples per second.
+        with SampleWriter() as writer:
+            for body_id, j in todo:
+                state = self._body_state(body_id)
+                t0 = time.perf_counter()
+                finish = self._one_view(self.renderer, body_id, *state, j, rejected)
+                if finish is not None:
+                    writer.submit(finish)
+                self._time("views", time.perf_counter() - t0)
+                bar.update(1)
         bar.close()
         if rejected:
             log.info("rejected views: %s", ", ".join(f"{n}x {r}" for r, n in sorted(rejected.items())))
@@ -210,6 +215,8 @@ class Generate2DViews(_Stage):
 
     def _one_view(self, renderer, body_id, body, mesh_b, instances, nevi_map, placements,
                   lesion_points, backgrounds, j, rejected):
+        """Sample and render view ``j``; returns the function that composites, applies
+        the camera model and writes it (None when no acceptable view was found)."""
         from . import photo
         cfg, v = self.cfg, self.cfg.views
         sid = f"{body_id}_{j:04d}"
@@ -243,12 +250,8 @@ class Generate2DViews(_Stage):
         focus = float(np.linalg.norm(np.subtract(cam.target, cam.eye)))
         photo_params = photo.sample_params(cfg.photo, rng_for(cfg.seed, "photo", body_id, j), focus,
                                            focal_px=float(cam.intrinsics()[1, 1]))
-        if "rgb" in cfg.outputs:
-            if background is None:
-                background = backgrounds.get(bg_index, v.size, v.size)
-            layers["image"] = V.composite(layers["rgb"], layers["alpha"], background, blur)
-            # RGB only: every label layer stays the sharp geometric truth
-            layers["image"] = photo.apply(layers["image"], photo_params, layers["depth"])
+        if "rgb" in cfg.outputs and background is None:
+            background = backgrounds.get(bg_index, v.size, v.size)
         by_instance = {p.instance: p for p in placements}
         lesions = []
         for k, box in layers["boxes"].items():
@@ -282,7 +285,50 @@ class Generate2DViews(_Stage):
                               (("skin", V.SEMANTIC_SKIN), ("lesion", V.SEMANTIC_LESION),
                                ("nonskin", V.SEMANTIC_NONSKIN))},
                 "box_convention": "[x0, y0, x1, y1] pixels, x1/y1 exclusive"}
-        write_sample(self.out, sid, layers, meta, cfg.outputs)
+        out, outputs = self.out, cfg.outputs
+
+        def finish():
+            t0 = time.perf_counter()
+            if "rgb" in outputs:
+                image = V.composite(layers["rgb"], layers["alpha"], background, blur)
+                # RGB only: every label layer stays the sharp geometric truth
+                layers["image"] = photo.apply(image, photo_params, layers["depth"])
+            write_sample(out, sid, layers, meta, outputs)
+            self._time("finish", time.perf_counter() - t0)  # in the writer thread
+        return finish
+
+
+class SampleWriter:
+    """Runs each sample's finishing work (``submit(fn)``) in one background thread, at
+    most ``max_pending`` samples behind the renderer; leaving the ``with`` block waits
+    for all of them and re-raises the first error. A sample's JSON is still its last
+    file, so an interrupted run leaves only complete samples or temporaries."""
+
+    def __init__(self, max_pending=3):
+        from collections import deque
+        from concurrent.futures import ThreadPoolExecutor
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="glsynth-writer")
+        self._pending, self.max_pending = deque(), max_pending
+
+    def submit(self, fn):
+        self._pending.append(self._pool.submit(fn))
+        while len(self._pending) > self.max_pending:
+            self._pending.popleft().result()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        try:
+            while self._pending:
+                future = self._pending.popleft()
+                if exc[0] is None:
+                    future.result()
+                else:
+                    future.cancel()
+        finally:
+            self._pool.shutdown(wait=True)
+        return False
 
 
 def _jsonable(obj):
