@@ -199,6 +199,23 @@ def test_several_label_textures_in_one_draw(renderer, rng):
         assert (out[k] == single[k]).all()
 
 
+def test_gbuffer_and_labels_in_one_draw_equal_separate_draws(renderer, rng):
+    from shapes import sphere
+    mesh = sphere(rng)
+    maps = {f"m{i}": rng.integers(0, 65536, size=(32, 32)).astype(np.uint16) for i in range(4)}
+    eye = rng.normal(size=3)
+    cam = gs.Camera.look_at(eye / np.linalg.norm(eye) * 3, (0, 0, 0), width=renderer.width,
+                            height=renderer.height)
+    both = renderer.render(mesh, cam, passes=("gbuffer", "labels"), label_textures=maps)
+    gbuf = renderer.render(mesh, cam, passes=("gbuffer",))
+    labels = renderer.render(mesh, cam, passes=("labels",), label_textures=maps)
+    for k in ("face_id", "bary", "depth", "uv"):
+        assert np.array_equal(both[k], gbuf[k]), k
+    for k in maps:
+        assert np.array_equal(both[k], labels[k]), k
+    assert (both["m0"][both["face_id"] < 0] == 0).all()
+
+
 def test_vertex_labels_exact(renderer, rng):
     mesh = sphere(rng, subdivisions=2)
     labels = rng.integers(1, 17, size=len(mesh.vertices)).astype(np.uint8)

@@ -98,9 +98,10 @@ class Renderer:
         self.ctx.depth_clamp_range = (0.0, 1.0)  # enables GL_DEPTH_CLAMP (see Camera.clip_planes)
         vert, geom = shader_source("mesh.vert"), shader_source("mesh.geom")
         self.programs = {
-            name: self.ctx.program(vertex_shader=vert, geometry_shader=geom,
-                                   fragment_shader=shader_source(frag))
-            for name, frag in (("gbuffer", "gbuffer.frag"), ("labels", "labels.frag"))}
+            name: self.ctx.program(vertex_shader=vert, geometry_shader=geom, fragment_shader=frag)
+            for name, frag in (("gbuffer", shader_source("gbuffer.frag")),
+                               ("gbuffer+labels", with_defines(shader_source("gbuffer.frag"), LABELS=1)),
+                               ("labels", shader_source("labels.frag")))}
         self.programs["uvspace"] = self.ctx.program(
             vertex_shader=shader_source("uvspace.vert"), geometry_shader=geom,
             fragment_shader=shader_source("gbuffer.frag"))
@@ -113,7 +114,8 @@ class Renderer:
         self._label_tex = {}   # id(array) -> (array, texture)
         self._fbos = {}
         for i in range(MAX_LABEL_TARGETS):
-            self.programs["labels"][f"u_labels{i}"] = i
+            self.programs["labels"][f"u_labels{i}"] = i + 2
+            self.programs["gbuffer+labels"][f"u_labels{i}"] = i + 2
 
     def _phong(self, n_lights: int, shadows: bool) -> str:
         """Name of the shading program for this light count and shadow setting, compiled
@@ -201,9 +203,11 @@ class Renderer:
             self._release_fbo(self._fbos.pop(next(iter(self._fbos))))
         ctx = self.ctx
         depth = ctx.depth_renderbuffer((w, h))
-        if kind == "gbuffer":
+        if kind in ("gbuffer", "gbuffer+labels"):
             colors = [ctx.renderbuffer((w, h), 1, dtype="i4"), ctx.renderbuffer((w, h), 4, dtype="f4"),
                       ctx.renderbuffer((w, h), 2, dtype="f4")]
+            if kind == "gbuffer+labels":
+                colors += [ctx.renderbuffer((w, h), 1, dtype="u2") for _ in range(MAX_LABEL_TARGETS)]
         elif kind == "labels":
             colors = [ctx.renderbuffer((w, h), 1, dtype="u2") for _ in range(MAX_LABEL_TARGETS)]
         elif kind == "rgb":
@@ -258,15 +262,18 @@ class Renderer:
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        if "gbuffer" in passes:
-            out.update(self._render_gbuffer(gpu, mats, size))
+        labels = None
+        if "labels" in passes:
+            labels = self._bind_labels(label_texture, label_textures)
+        if "gbuffer" in passes:  # with the labels in the same draw when both are asked for
+            out.update(self._render_gbuffer(gpu, mats, size, labels))
+        elif labels is not None:
+            out.update(self._render_labels(gpu, mats, labels, size))
         if "rgb" in passes:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
             out.update(self._render_rgb(gpu, mesh, mats, camera, lights, material, supersample,
                                         size, shadows))
-        if "labels" in passes:
-            out.update(self._render_labels(gpu, mats, label_texture, label_textures, size))
         return out
 
     @staticmethod
@@ -328,17 +335,21 @@ class Renderer:
         fbo.read_into(buf, components=components, attachment=attachment, dtype=dtype, alignment=1)
         return np.ascontiguousarray(buf[::-1])
 
-    def _render_gbuffer(self, gpu, mats, size):
-        fbo = self._fbo("gbuffer", *size)
+    def _render_gbuffer(self, gpu, mats, size, labels=None):
+        kind = "gbuffer" if labels is None else "gbuffer+labels"
+        fbo = self._fbo(kind, *size)
         # moderngl clears every attachment with the same (float) value, so the shader
         # writes face id + 1 over a cleared 0, and -1 lands in the depth channel.
-        self._draw(gpu, "gbuffer", fbo, mats, clear=(0.0, 0.0, 0.0, -1.0))
+        self._draw(gpu, kind, fbo, mats, clear=(0.0, 0.0, 0.0, -1.0))
         face = self._read(fbo, 0, 1, "i4", np.int32)
         face -= 1
         bd = self._read(fbo, 1, 4, "f4", np.float32)
         uv = self._read(fbo, 2, 2, "f4", np.float32)
-        return {"face_id": face, "bary": np.ascontiguousarray(bd[..., :3]),
-                "depth": np.ascontiguousarray(bd[..., 3]), "uv": uv}
+        out = {"face_id": face, "bary": np.ascontiguousarray(bd[..., :3]),
+               "depth": np.ascontiguousarray(bd[..., 3]), "uv": uv}
+        for i, name in enumerate(labels or ()):
+            out[name] = self._read(fbo, 3 + i, 1, "u2", np.uint16)
+        return out
 
     def _render_rgb(self, gpu, mesh, mats, camera, lights, material, supersample, size, shadows):
         k = int(supersample)
@@ -361,7 +372,8 @@ class Renderer:
         rgba = self._read(fbo, 0, 4, "f4", np.float32)
         return {"rgb": np.ascontiguousarray(rgba[..., :3]), "alpha": np.ascontiguousarray(rgba[..., 3])}
 
-    def _render_labels(self, gpu, mats, label_texture, label_textures, size):
+    def _bind_labels(self, label_texture, label_textures) -> list:
+        """Upload (once) and bind the label textures of a render; returns their names."""
         if label_textures is None:
             if label_texture is None:
                 raise ValueError("the labels pass needs label_texture= or label_textures=")
@@ -371,15 +383,18 @@ class Renderer:
         items = list(label_textures.items())
         if not 1 <= len(items) <= MAX_LABEL_TARGETS:
             raise ValueError(f"1 to {MAX_LABEL_TARGETS} label textures per render, got {len(items)}")
-        prog = self.programs["labels"]
         in_use = {id(arr) for _, arr in items}
         textures = [self._label_texture(arr, in_use) for _, arr in items]
         for i in range(MAX_LABEL_TARGETS):  # unused samplers still need a valid texture
-            textures[min(i, len(textures) - 1)].use(i)
-        prog["u_count"].value = len(items)
+            textures[min(i, len(textures) - 1)].use(i + 2)  # units 0, 1: colour, shadow map
+        for name in ("labels", "gbuffer+labels"):
+            self.programs[name]["u_count"].value = len(items)
+        return [name for name, _ in items]
+
+    def _render_labels(self, gpu, mats, names, size):
         fbo = self._fbo("labels", *size)
         self._draw(gpu, "labels", fbo, mats)
-        return {name: self._read(fbo, i, 1, "u2", np.uint16) for i, (name, _) in enumerate(items)}
+        return {name: self._read(fbo, i, 1, "u2", np.uint16) for i, name in enumerate(names)}
 
     def _draw(self, gpu, prog_name, fbo, mats, clear=(0.0, 0.0, 0.0, 0.0)):
         prog = self.programs[prog_name]
