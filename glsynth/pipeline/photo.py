@@ -37,6 +37,7 @@ from the recorded ``seed``), so a recorded sample can be reproduced exactly.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -170,17 +171,25 @@ def motion_blur(lin, length, angle_deg):
     return cv2.filter2D(lin, -1, line_kernel(length, angle_deg), borderType=cv2.BORDER_REFLECT)
 
 
+@functools.lru_cache(maxsize=4)
 def _radius_grid(h, w):
+    """Pixel offsets from the image centre (x, y), their squared radius over the corner
+    radius squared, and the corner radius; cached (read-only) since every view of a run
+    has the same size."""
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     cy, cx = (h - 1) / 2, (w - 1) / 2
-    return xx - cx, yy - cy, math.hypot(cx, cy)
+    dx, dy, rc = xx - cx, yy - cy, math.hypot(cx, cy)
+    rho2 = (dx ** 2 + dy ** 2) / np.float32(rc ** 2)
+    for a in (dx, dy, rho2):
+        a.setflags(write=False)
+    return dx, dy, rho2, rc
 
 
 def chromatic_aberration(lin, shift_px):
     """Lateral CA: red magnified, blue shrunk about the centre, by ``shift_px`` pixels at
     the corners (green is the reference)."""
     h, w = lin.shape[:2]
-    dx, dy, rc = _radius_grid(h, w)
+    dx, dy, _, rc = _radius_grid(h, w)
     cx, cy = (w - 1) / 2, (h - 1) / 2
     out = lin.copy()
     for c, sign in ((0, 1.0), (2, -1.0)):
@@ -192,9 +201,8 @@ def chromatic_aberration(lin, shift_px):
 
 
 def vignetting(lin, strength):
-    h, w = lin.shape[:2]
-    dx, dy, rc = _radius_grid(h, w)
-    gain = 1 - strength * (dx ** 2 + dy ** 2) / rc ** 2
+    rho2 = _radius_grid(*lin.shape[:2])[2]
+    gain = 1 - np.float32(strength) * rho2
     return lin * gain[..., None]
 
 

@@ -307,7 +307,7 @@ class SampleWriter:
     def __init__(self, max_pending=3):
         from collections import deque
         from concurrent.futures import ThreadPoolExecutor
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="glsynth-writer")
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="glsynth-writer")
         self._pending, self.max_pending = deque(), max_pending
 
     def submit(self, fn):
