@@ -1,26 +1,29 @@
 #version 330 core
-// G-buffer: face id + 1 (0 = background), barycentrics + view depth, UV; with LABELS
-// also the label textures of labels.glsl in targets 3-6 (saves a draw of the mesh).
+// G-buffer: face id + 1 (0 = background), view depth, barycentrics, UV, one target each
+// so that a render reads back only what it needs; with LABELS also the label textures
+// of labels.glsl in targets 4-7 (saves a draw of the mesh).
 #ifndef LABELS
 #define LABELS 0
 #endif
 #include "surface.glsl"
 
 layout(location = 0) out int out_face;
-layout(location = 1) out vec4 out_bary_depth;
-layout(location = 2) out vec2 out_uv;
+layout(location = 1) out float out_depth;
+layout(location = 2) out vec4 out_bary;
+layout(location = 3) out vec2 out_uv;
 #if LABELS
 #include "labels.glsl"
-layout(location = 3) out uint out_label0;
-layout(location = 4) out uint out_label1;
-layout(location = 5) out uint out_label2;
-layout(location = 6) out uint out_label3;
+layout(location = 4) out uint out_label0;
+layout(location = 5) out uint out_label1;
+layout(location = 6) out uint out_label2;
+layout(location = 7) out uint out_label3;
 #endif
 
 void main() {
     vec3 b = surface_bary();
     out_face = g_face + 1;
-    out_bary_depth = vec4(b, dot(g_depth, b));
+    out_depth = dot(g_depth, b);
+    out_bary = vec4(b, 0.0);
     out_uv = g_uv * b;
 #if LABELS
     uvec4 l = fetch_labels(out_uv);

@@ -216,6 +216,23 @@ def test_gbuffer_and_labels_in_one_draw_equal_separate_draws(renderer, rng):
     assert (both["m0"][both["face_id"] < 0] == 0).all()
 
 
+def test_reads_back_only_the_requested_buffers(renderer, rng):
+    from shapes import sphere
+    mesh = sphere(rng)
+    maps = {"a": rng.integers(0, 65536, size=(16, 16)).astype(np.uint16),
+            "b": rng.integers(0, 65536, size=(16, 16)).astype(np.uint16)}
+    cam = gs.Camera.look_at((0.2, 0.3, 2.0), (0, 0, 0), width=renderer.width, height=renderer.height)
+    passes = ("gbuffer", "labels", "rgb")
+    full = renderer.render(mesh, cam, passes=passes, label_textures=maps)
+    some = renderer.render(mesh, cam, passes=passes, label_textures=maps, buffers=("depth", "b", "rgb"))
+    assert set(some) == {"face_id", "depth", "b", "rgb", "alpha"}  # colour and coverage: one read
+    for k in some:
+        assert np.array_equal(some[k], full[k]), k
+    assert (full["depth"][full["face_id"] < 0] == -1).all() and (full["depth"][full["face_id"] >= 0] > 0).all()
+    with pytest.raises(ValueError, match="unknown buffer"):
+        renderer.render(mesh, cam, passes=("gbuffer",), buffers=("normals",))
+
+
 def test_vertex_labels_exact(renderer, rng):
     mesh = sphere(rng, subdivisions=2)
     labels = rng.integers(1, 17, size=len(mesh.vertices)).astype(np.uint8)

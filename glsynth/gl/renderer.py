@@ -22,6 +22,7 @@ from .context import create_context
 log = logging.getLogger(__name__)
 
 PASSES = ("gbuffer", "rgb", "labels")
+GBUFFER_LAYERS = ("face_id", "depth", "bary", "uv")
 MAX_LABEL_TARGETS = 4
 MAX_SUPERSAMPLE = 8
 
@@ -203,9 +204,9 @@ class Renderer:
             self._release_fbo(self._fbos.pop(next(iter(self._fbos))))
         ctx = self.ctx
         depth = ctx.depth_renderbuffer((w, h))
-        if kind in ("gbuffer", "gbuffer+labels"):
-            colors = [ctx.renderbuffer((w, h), 1, dtype="i4"), ctx.renderbuffer((w, h), 4, dtype="f4"),
-                      ctx.renderbuffer((w, h), 2, dtype="f4")]
+        if kind in ("gbuffer", "gbuffer+labels"):  # face id, depth, barycentrics, UV
+            colors = [ctx.renderbuffer((w, h), 1, dtype="i4"), ctx.renderbuffer((w, h), 1, dtype="f4"),
+                      ctx.renderbuffer((w, h), 4, dtype="f4"), ctx.renderbuffer((w, h), 2, dtype="f4")]
             if kind == "gbuffer+labels":
                 colors += [ctx.renderbuffer((w, h), 1, dtype="u2") for _ in range(MAX_LABEL_TARGETS)]
         elif kind == "labels":
@@ -230,7 +231,7 @@ class Renderer:
     # ---- rendering ----------------------------------------------------------------
     def render(self, mesh: Mesh, camera: Camera, passes=("gbuffer", "rgb"), lights=None,
                material=None, label_texture=None, label_textures=None, supersample=1,
-               shadows=False):
+               shadows=False, buffers=None):
         """Render ``mesh`` from ``camera``.
 
         passes: any of 'gbuffer', 'rgb', 'labels'. Returns a dict of numpy arrays
@@ -242,19 +243,23 @@ class Renderer:
                    first light (soft shadows on its diffuse and specular terms)
           labels:  labels uint16 (from ``label_texture``) or one uint16 array per name
                    of ``label_textures`` (at most 4 per call)
-        Vertex/face labels (anatomy) come from the G-buffer: see ``vertex_label_image``.
+        ``buffers``: the names above to read back (default: all that the passes make);
+        the others are drawn but never copied to memory (face_id is always read with the
+        G-buffer, rgb and alpha come together). Vertex/face labels (anatomy) come from the G-buffer: see
+        ``vertex_label_image``.
         """
         # Another library (pyrender, a GUI toolkit) may have made its own context
         # current since the last call: always draw in ours.
         with self.ctx:
             return self._render(mesh, camera, tuple(passes), lights, material,
-                                label_texture, label_textures, supersample, shadows)
+                                label_texture, label_textures, supersample, shadows, buffers)
 
     def _render(self, mesh, camera, passes, lights, material, label_texture,
-                label_textures, supersample, shadows=False):
+                label_textures, supersample, shadows=False, buffers=None):
         unknown = set(passes) - set(PASSES)
         if unknown:
             raise ValueError(f"unknown pass(es) {sorted(unknown)}; choose from {PASSES}")
+        want = None if buffers is None else set(buffers)
         size = (camera.width, camera.height)  # framebuffers are cached per size
         gpu = self._gpu_mesh(mesh)
         mats = self._matrices(mesh, camera)
@@ -265,8 +270,13 @@ class Renderer:
         labels = None
         if "labels" in passes:
             labels = self._bind_labels(label_texture, label_textures)
+        if want is not None:
+            known = set(GBUFFER_LAYERS) | {"rgb", "alpha"} | set(labels or ())
+            if want - known:
+                raise ValueError(f"unknown buffer(s) {sorted(want - known)}; these passes make "
+                                 f"{sorted(known)}")
         if "gbuffer" in passes:  # with the labels in the same draw when both are asked for
-            out.update(self._render_gbuffer(gpu, mats, size, labels))
+            out.update(self._render_gbuffer(gpu, mats, size, labels, want))
         elif labels is not None:
             out.update(self._render_labels(gpu, mats, labels, size))
         if "rgb" in passes:
@@ -335,20 +345,25 @@ class Renderer:
         fbo.read_into(buf, components=components, attachment=attachment, dtype=dtype, alignment=1)
         return np.ascontiguousarray(buf[::-1])
 
-    def _render_gbuffer(self, gpu, mats, size, labels=None):
+    def _render_gbuffer(self, gpu, mats, size, labels=None, want=None):
         kind = "gbuffer" if labels is None else "gbuffer+labels"
         fbo = self._fbo(kind, *size)
-        # moderngl clears every attachment with the same (float) value, so the shader
-        # writes face id + 1 over a cleared 0, and -1 lands in the depth channel.
-        self._draw(gpu, kind, fbo, mats, clear=(0.0, 0.0, 0.0, -1.0))
+        # moderngl clears every attachment with the same value, so the shader writes
+        # face id + 1 over a cleared 0; background depth is set to -1 from the face ids.
+        self._draw(gpu, kind, fbo, mats)
         face = self._read(fbo, 0, 1, "i4", np.int32)
         face -= 1
-        bd = self._read(fbo, 1, 4, "f4", np.float32)
-        uv = self._read(fbo, 2, 2, "f4", np.float32)
-        out = {"face_id": face, "bary": np.ascontiguousarray(bd[..., :3]),
-               "depth": np.ascontiguousarray(bd[..., 3]), "uv": uv}
+        out = {"face_id": face}
+        if want is None or "depth" in want:
+            depth = out["depth"] = self._read(fbo, 1, 1, "f4", np.float32)
+            depth[face < 0] = -1.0
+        if want is None or "bary" in want:
+            out["bary"] = np.ascontiguousarray(self._read(fbo, 2, 4, "f4", np.float32)[..., :3])
+        if want is None or "uv" in want:
+            out["uv"] = self._read(fbo, 3, 2, "f4", np.float32)
         for i, name in enumerate(labels or ()):
-            out[name] = self._read(fbo, 3 + i, 1, "u2", np.uint16)
+            if want is None or name in want:
+                out[name] = self._read(fbo, 4 + i, 1, "u2", np.uint16)
         return out
 
     def _render_rgb(self, gpu, mesh, mats, camera, lights, material, supersample, size, shadows):
@@ -419,10 +434,10 @@ class Renderer:
             gpu = self._gpu_mesh(mesh)
             fbo = self._fbo("gbuffer", int(width), int(height))
             self.ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE | moderngl.BLEND)
-            self._draw(gpu, "uvspace", fbo, {}, clear=(0.0, 0.0, 0.0, -1.0))
+            self._draw(gpu, "uvspace", fbo, {})
             face = self._read(fbo, 0, 1, "i4", np.int32)
             face -= 1
-            bary = self._read(fbo, 1, 4, "f4", np.float32)[..., :3]
+            bary = self._read(fbo, 2, 4, "f4", np.float32)[..., :3]
         return {"face_id": face, "bary": np.ascontiguousarray(bary)}
 
     @staticmethod

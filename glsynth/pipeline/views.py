@@ -111,6 +111,20 @@ def passes_for(outputs) -> tuple:
     return ("gbuffer", "rgb", "labels") if "rgb" in outputs else ("gbuffer", "labels")
 
 
+def buffers_for(outputs, labels) -> tuple:
+    """The buffers a view reads back: face ids, depth and the label maps always (they
+    decide acceptance; depth drives defocus), barycentrics only for anatomy and normals,
+    UV only when written, colour only for RGB."""
+    need = ["face_id", "depth", *labels]
+    if "anatomy" in outputs or "normals" in outputs:
+        need.append("bary")
+    if "uv" in outputs:
+        need.append("uv")
+    if "rgb" in outputs:
+        need += ["rgb", "alpha"]
+    return tuple(need)
+
+
 def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v, outputs):
     """Render one view; returns the layers dict (numpy) or raises ViewRejected."""
     labels = {"instances": instances, "nonskin": body.nonskin}
@@ -118,7 +132,7 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
         labels["nevi"] = nevi_map
     out = renderer.render(mesh_b, scene.camera, passes=passes_for(outputs), lights=scene.lights,
                           material=scene.material, label_textures=labels, supersample=v.supersample,
-                          shadows=v.shadows)
+                          shadows=v.shadows, buffers=buffers_for(outputs, labels))
     body_px = out["face_id"] >= 0
     lesion = body_px & (out["instances"] > 0)
     nonskin = body_px & (out["nonskin"] > 0) & ~lesion
