@@ -7,12 +7,15 @@
    ``--repeats`` runs, with the per-stage split from the manifest.
 2. Seconds per blended lesion: deep blend (paper settings, 400 steps) with the
    weight-free filter bank, with VGG16 when weights are found locally, and Poisson.
-3. RGB-only generation against all targets (what leaving out unused passes saves).
+3. RGB-only generation against the default targets and against all eight targets
+   (what leaving out unused passes, read-backs and writes saves), with the CPU time per
+   sample (all processes; on 2 cores, samples/s can be at most 2000 / core-ms).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import statistics
 import tempfile
@@ -23,19 +26,31 @@ from glsynth.config import load_config
 from glsynth.pipeline.stages import generate
 
 
+ALL_TARGETS = "outputs=[rgb,semantic,instances,anatomy,depth,normals,uv,face_id]"
+
+
+def _cpu_seconds():
+    """CPU time of this process and its finished children (worker processes)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
 def _views_run(overrides, workers, repeats, prepared):
-    """Median samples/s of the view stage over repeats (paste/blend results reused)."""
-    rates, manifest = [], None
+    """Median samples/s and CPU ms per sample of the view stage over repeats
+    (paste/blend results reused)."""
+    rates, cpu, manifest = [], [], None
     for _ in range(repeats):
         out = tempfile.mkdtemp(prefix="glsynth-bench-")
         shutil.copytree(f"{prepared}/bodies", f"{out}/bodies")
         cfg = load_config(None, overrides)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), _cpu_seconds()
         manifest = generate(cfg, out, resume=True, workers=workers)
-        dt = time.perf_counter() - t0
-        rates.append(manifest["counts"]["images"] / dt)
+        dt, dc = time.perf_counter() - t0, _cpu_seconds() - c0
+        n = manifest["counts"]["images"]
+        rates.append(n / dt)
+        cpu.append(1e3 * dc / n)
         shutil.rmtree(out)
-    return statistics.median(rates), manifest
+    return statistics.median(rates), statistics.median(cpu), manifest
 
 
 def main(argv=None):
@@ -43,24 +58,32 @@ def main(argv=None):
     ap.add_argument("--views", type=int, default=40, help="views per body (2 bodies)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--blend-steps", type=int, default=400)
+    ap.add_argument("--workers", default="1,2",
+                    help="comma-separated worker counts for the default and RGB-only rows")
     args = ap.parse_args(argv)
+    counts = tuple(int(n) for n in args.workers.split(","))
     base = [f"views.per_body={args.views}"]
 
     prepared = tempfile.mkdtemp(prefix="glsynth-prep-")
     generate(load_config(None, base + ["views.per_body=0"]), prepared)  # bodies, paste, blend
 
     print("## Samples per second (512x512, default config, views stage incl. writing)\n")
-    print("| setting | workers | samples/s | per-stage seconds (summed over workers) |")
-    print("|---|---:|---:|---|")
+    print("| outputs | workers | samples/s | CPU core-ms per sample | per-stage seconds (summed over workers) |")
+    print("|---|---:|---:|---:|---|")
     rows = {}
-    for name, extra in (("all targets", []), ("RGB only", ["outputs=[rgb]"])):
-        for workers in (1, 2):
-            rate, man = _views_run(base + extra, workers, args.repeats, prepared)
+    for name, extra, worker_counts in (("default (5 targets)", [], counts),
+                                       ("all 8 targets", [ALL_TARGETS], counts[:1]),
+                                       ("RGB only", ["outputs=[rgb]"], counts)):
+        for workers in worker_counts:
+            rate, cpu, man = _views_run(base + extra, workers, args.repeats, prepared)
             rows[(name, workers)] = rate
             split = {k: v for k, v in man["timings_seconds"].items() if k != "total"}
-            print(f"| {name} | {workers} | {rate:.2f} | {json.dumps(split)} |")
-    print(f"\nRGB-only vs all targets (1 worker): {rows[('RGB only', 1)] / rows[('all targets', 1)]:.2f}x; "
-          f"2 vs 1 workers (all targets): {rows[('all targets', 2)] / rows[('all targets', 1)]:.2f}x")
+            print(f"| {name} | {workers} | {rate:.2f} | {cpu:.0f} | {json.dumps(split)} |")
+    one, most = counts[0], counts[-1]
+    rgb = rows[("RGB only", one)]
+    print(f"\nRGB-only vs default targets: {rgb / rows[('default (5 targets)', one)]:.2f}x, vs all 8 "
+          f"targets: {rgb / rows[('all 8 targets', one)]:.2f}x ({one} worker(s)); {most} vs {one} "
+          f"workers (default): {rows[('default (5 targets)', most)] / rows[('default (5 targets)', one)]:.2f}x")
     print(f"GL_RENDERER: {man['gl_renderer']}\n")
 
     print(f"## Blend seconds per lesion (paper settings, {args.blend_steps} steps for deep)\n")
@@ -76,7 +99,6 @@ def main(argv=None):
             for f in ("blended.png", "blend.json"):
                 p = f"{out}/bodies/{b}/{f}"
                 try:
-                    import os
                     os.unlink(p)
                 except FileNotFoundError:
                     pass

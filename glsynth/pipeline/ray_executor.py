@@ -66,8 +66,10 @@ if has_ray:
                 os.environ.setdefault("GLCONTEXT_DEVICE_INDEX", str(gpu_ids[0]))
             logging.basicConfig(level=logging.WARNING)
             from glsynth.config import from_dict
-            from glsynth.pipeline.stages import _Worker
-            self.worker = _Worker(from_dict(cfg_dict), out)
+            from glsynth.pipeline.stages import _Worker, share_cores
+            cpus = int(ray.get_runtime_context().get_assigned_resources().get("CPU", 1) or 1)
+            share_cores(cpus)  # before the GL context: llvmpipe reads LP_NUM_THREADS then
+            self.worker = _Worker(from_dict(cfg_dict), out, writer_threads=cpus)
 
         def ready(self):
             return {"pid": os.getpid(), "node": ray.get_runtime_context().get_node_id(),

@@ -151,6 +151,8 @@ class BlendLesions(_Stage):
 class Generate2DViews(_Stage):
     """Render ``views.per_body`` annotated views per body and write the dataset."""
 
+    writer_threads = 2  # finishing threads (composite, camera model, encoding)
+
     def synthesize_views(self, tasks=None, progress=True):
         """Render the (body id, view index) ``tasks`` (default: all of this run's) that
         are not written yet; returns {rejection reason: count}."""
@@ -163,7 +165,7 @@ class Generate2DViews(_Stage):
         rejected = {}
         # Compositing, the camera model and encoding run in a thread while the next view
         # renders (OpenCV, zlib and numpy release the GIL): ~1.4x more samples per second.
-        with SampleWriter() as writer:
+        with SampleWriter(threads=self.writer_threads) as writer:
             for body_id, j in todo:
                 state = self._body_state(body_id)
                 t0 = time.perf_counter()
@@ -299,15 +301,15 @@ class Generate2DViews(_Stage):
 
 
 class SampleWriter:
-    """Runs each sample's finishing work (``submit(fn)``) in one background thread, at
+    """Runs each sample's finishing work (``submit(fn)``) in background threads, at
     most ``max_pending`` samples behind the renderer; leaving the ``with`` block waits
     for all of them and re-raises the first error. A sample's JSON is still its last
     file, so an interrupted run leaves only complete samples or temporaries."""
 
-    def __init__(self, max_pending=3):
+    def __init__(self, threads=2, max_pending=3):
         from collections import deque
         from concurrent.futures import ThreadPoolExecutor
-        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="glsynth-writer")
+        self._pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="glsynth-writer")
         self._pending, self.max_pending = deque(), max_pending
 
     def submit(self, fn):
@@ -338,13 +340,14 @@ def _jsonable(obj):
 class _Worker:
     """One process's share of a run: its own GL context, stages and loaded body."""
 
-    def __init__(self, cfg: Config, out):
+    def __init__(self, cfg: Config, out, writer_threads=2):
         from ..gl.renderer import Renderer
         size = max(cfg.paste.view_size, cfg.views.size)
         renderer = Renderer(size, size)
         self.paste = SelectAndPaste(cfg, out, renderer=renderer, body_subset=[])
         self.blend = BlendLesions(cfg, out, renderer=renderer, body_subset=[])
         self.views = Generate2DViews(cfg, out, renderer=renderer, body_subset=[])
+        self.views.writer_threads = min(2, writer_threads)
         self.cfg = cfg
 
     def prepare(self, body_id):
@@ -373,15 +376,26 @@ class _Worker:
 _PROCESS_WORKER = None
 
 
-def _worker_init(cfg_dict, out):
-    global _PROCESS_WORKER
+def share_cores(threads: int):
+    """Limit this process's thread pools to ``threads``: llvmpipe's rasteriser threads
+    (read when the GL context is made, so call this first; a user's LP_NUM_THREADS
+    wins), OpenCV's and torch's. Each pool defaults to every core, so N worker
+    processes oversubscribed the machine N-fold: 2 workers on 2 cores ran at 0.7x
+    the samples/s of one, 8 on 16 cores at 0.75x."""
+    import cv2
     import torch
+    threads = max(1, int(threads))
+    os.environ.setdefault("LP_NUM_THREADS", str(threads))
+    cv2.setNumThreads(threads)
+    torch.set_num_threads(threads)
+
+
+def _worker_init(cfg_dict, out, threads):
+    global _PROCESS_WORKER
     from ..config import from_dict
     logging.basicConfig(level=logging.WARNING)
-    # One process per core: several torch threads per process spin against each other
-    # (a blend step took 4-10x longer with 2 threads in each of 2 busy processes).
-    torch.set_num_threads(1)
-    _PROCESS_WORKER = _Worker(from_dict(cfg_dict), out)
+    share_cores(threads)
+    _PROCESS_WORKER = _Worker(from_dict(cfg_dict), out, writer_threads=threads)
 
 
 def _worker_prepare(body_id):
@@ -436,7 +450,8 @@ def generate(cfg: Config, out, resume=False, workers=1, executor="local", addres
     else:
         import multiprocessing as mp
         ctx = mp.get_context("spawn")  # GL contexts do not survive fork
-        with ctx.Pool(workers, initializer=_worker_init, initargs=(cfg.to_dict(), out)) as pool:
+        threads = max(1, (os.cpu_count() or 1) // workers)
+        with ctx.Pool(workers, initializer=_worker_init, initargs=(cfg.to_dict(), out, threads)) as pool:
             reports += list(tqdm(pool.imap_unordered(_worker_prepare, ids), total=len(ids),
                                  desc="paste + blend", unit="body"))
             bar = tqdm(total=len(tasks), desc="views", unit="img")
