@@ -137,9 +137,14 @@ class _Pool:
 
 
 def _actor_options(workers):
-    """One CPU per actor; a GPU (or an equal share of the cluster's GPUs) when it has any."""
+    """An equal share of the cluster's CPUs per actor (at most one node's worth, so every
+    actor fits on a node; its thread pools follow it, see ``share_cores``), and a GPU (or
+    an equal share of the cluster's GPUs) when it has any."""
     gpus = float(ray.cluster_resources().get("GPU", 0))
-    opts = {"num_cpus": 1}
+    cpus = float(ray.cluster_resources().get("CPU", 1))
+    node_cpus = [n["Resources"].get("CPU", 0) for n in ray.nodes() if n.get("Alive")]
+    per_node = min((c for c in node_cpus if c >= 1), default=1)
+    opts = {"num_cpus": max(1, int(min(cpus // workers, per_node)))}
     if gpus >= 1:
         per = 1.0 if gpus >= workers else 1.0 / math.ceil(workers / gpus)
         opts["num_gpus"] = per
@@ -152,7 +157,7 @@ def run_ray(cfg, out, ids, chunks, workers, address=None):
 
     ``address``: an existing cluster ("auto", "ray://host:10001", "host:6379"); None
     joins the cluster this process is already connected to, else starts a local one
-    with ``workers`` CPUs. Only a cluster started here is shut down here.
+    with this machine's CPUs. Only a cluster started here is shut down here.
     """
     _require_ray()
     out = os.path.abspath(os.fspath(out))
@@ -161,7 +166,7 @@ def run_ray(cfg, out, ids, chunks, workers, address=None):
         if address:
             ray.init(address=address)
         else:
-            ray.init(num_cpus=workers, include_dashboard=False)
+            ray.init(num_cpus=max(os.cpu_count() or 1, workers), include_dashboard=False)
         started_here = True
     pool = None
     try:
