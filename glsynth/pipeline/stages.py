@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import threading
 import time
 
 import numpy as np
@@ -36,6 +37,7 @@ class _Stage:
         self._renderer = renderer
         self.body_ids = body_subset if body_subset is not None else body_ids(config)
         self.timings = {}
+        self._timings_lock = threading.Lock()  # finishing threads add to the timings too
 
     @property
     def renderer(self):
@@ -49,7 +51,8 @@ class _Stage:
         return os.path.join(self.out, "bodies", body_id)
 
     def _time(self, name, seconds):
-        self.timings[name] = self.timings.get(name, 0.0) + seconds
+        with self._timings_lock:
+            self.timings[name] = self.timings.get(name, 0.0) + seconds
 
 
 def lesion_source(cfg: Config):
@@ -163,8 +166,8 @@ class Generate2DViews(_Stage):
         bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc="views", unit="img",
                    disable=not progress)
         rejected = {}
-        # Compositing, the camera model and encoding run in a thread while the next view
-        # renders (OpenCV, zlib and numpy release the GIL): ~1.4x more samples per second.
+        # Compositing, the camera model and encoding run in background threads while the
+        # next view renders (OpenCV, zlib and numpy release the GIL).
         with SampleWriter(threads=self.writer_threads) as writer:
             for body_id, j in todo:
                 state = self._body_state(body_id)
@@ -340,14 +343,15 @@ def _jsonable(obj):
 class _Worker:
     """One process's share of a run: its own GL context, stages and loaded body."""
 
-    def __init__(self, cfg: Config, out, writer_threads=2):
+    def __init__(self, cfg: Config, out, writer_threads=None):
         from ..gl.renderer import Renderer
         size = max(cfg.paste.view_size, cfg.views.size)
         renderer = Renderer(size, size)
         self.paste = SelectAndPaste(cfg, out, renderer=renderer, body_subset=[])
         self.blend = BlendLesions(cfg, out, renderer=renderer, body_subset=[])
         self.views = Generate2DViews(cfg, out, renderer=renderer, body_subset=[])
-        self.views.writer_threads = min(2, writer_threads)
+        if writer_threads is not None:  # a process's share of the cores caps the default
+            self.views.writer_threads = min(Generate2DViews.writer_threads, writer_threads)
         self.cfg = cfg
 
     def prepare(self, body_id):
