@@ -115,6 +115,41 @@ class Mesh:
         out[norm[:, 0] == 0] = (0.0, 1.0, 0.0)
         return out
 
+    @cached_property
+    def closed_orientation(self) -> int:
+        """+1 when the mesh is closed with consistently outward-wound faces
+        (counter-clockwise seen from outside), -1 when closed and wound inward, 0 otherwise
+        (open, non-manifold or degenerate). Closed meshes seen from outside show only
+        the faces turned towards the camera, so the renderer may cull the others."""
+        f = self.faces
+        if (f[:, 0] == f[:, 1]).any() or (f[:, 1] == f[:, 2]).any() or (f[:, 0] == f[:, 2]).any():
+            return 0
+        n = np.int64(len(self.vertices))
+        directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        keys = directed[:, 0] * n + directed[:, 1]
+        reverse = directed[:, 1] * n + directed[:, 0]
+        keys.sort()
+        # every directed edge once, and its reverse among them: a closed, consistently
+        # oriented 2-manifold (each undirected edge in exactly two faces, opposite ways)
+        if (keys[1:] == keys[:-1]).any():
+            return 0
+        pos = np.searchsorted(keys, reverse)
+        if not (keys[np.minimum(pos, len(keys) - 1)] == reverse).all():
+            return 0
+        # every connected part must enclose a volume with the same sign: one part wound
+        # inward would show its far side through its near side when culled
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+        nv = len(self.vertices)
+        graph = coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(nv, nv))
+        _, part = connected_components(graph, directed=False)
+        a, b, c = (self.vertices[f[:, i]] for i in range(3))
+        volumes = np.bincount(part[f[:, 0]], weights=np.einsum("ij,ij->i", a, np.cross(b, c)))
+        volumes = volumes[np.unique(part[f[:, 0]])]
+        if (volumes > 0).all():
+            return 1
+        return -1 if (volumes < 0).all() else 0
+
     @property
     def bounds(self):
         return self.vertices.min(0), self.vertices.max(0)

@@ -154,3 +154,27 @@ def test_bad_camera_inputs():
         gs.Camera.from_surface((0, 0, 0), (np.nan, 0, 1), 1.0)
     with pytest.raises(ValueError, match="fov_deg"):
         gs.Camera.look_at((0, 0, 1), (0, 0, 0), fov_deg=0)
+
+
+def test_closed_orientation_tells_closed_outward_inward_and_open_meshes():
+    trimesh = pytest.importorskip("trimesh")
+    s = trimesh.creation.icosphere(2)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    assert gs.Mesh(v, f, require_texture=False).closed_orientation == 1
+    assert gs.Mesh(v, f[:, ::-1], require_texture=False).closed_orientation == -1
+    assert gs.Mesh(v, f[1:], require_texture=False).closed_orientation == 0        # a hole
+    # two separate closed parts (a body and its eyes) are closed
+    two = np.concatenate([v, v * 0.3 + 3]), np.concatenate([f, f + len(v)])
+    assert gs.Mesh(*two, require_texture=False).closed_orientation == 1
+    # each part closed, but one wound inward: culling would show its far side
+    mixed = np.concatenate([f, f[:, ::-1] + len(v)])
+    assert gs.Mesh(two[0], mixed, require_texture=False).closed_orientation == 0
+    # a face repeated (an edge in three faces) and a collapsed face are not closed
+    assert gs.Mesh(v, np.concatenate([f, f[:1]]), require_texture=False).closed_orientation == 0
+    collapsed = f.copy()
+    collapsed[0, 1] = collapsed[0, 0]
+    assert gs.Mesh(v, collapsed, require_texture=False).closed_orientation == 0
+    # one face flipped inside a closed surface: not consistently oriented
+    bad = f.copy()
+    bad[5] = bad[5, ::-1]
+    assert gs.Mesh(v, bad, require_texture=False).closed_orientation == 0

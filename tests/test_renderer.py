@@ -286,3 +286,43 @@ def test_cropped_camera_renders_the_same_pixels(renderer, rng):
     np.testing.assert_allclose(crop["depth"][same], full["depth"][y0:y0 + 30, x0:x0 + 40][same],
                                rtol=1e-5)
     assert np.abs(crop["rgb"] - full["rgb"][y0:y0 + 30, x0:x0 + 40])[same].max() <= 1 / 255
+
+
+def _as_open(mesh):
+    """The same mesh, drawn as if it were open (both sides of every face)."""
+    copy = mesh.copy_with()
+    copy.__dict__["closed_orientation"] = 0  # overrides the cached property
+    return copy
+
+
+@pytest.mark.parametrize("inward", [False, True])
+def test_culling_closed_meshes_changes_nothing_seen_from_outside(renderer, rng, inward):
+    mesh = sphere(rng) if rng.random() < 0.5 else box(rng)
+    if inward:
+        mesh = mesh.copy_with(faces=mesh.faces[:, ::-1], face_uvs=mesh.face_uvs[:, ::-1])
+    assert mesh.closed_orientation == (-1 if inward else 1)
+    for _ in range(3):
+        d = rng.normal(size=3)
+        cam = gs.Camera.look_at(d / np.linalg.norm(d) * rng.uniform(0.7, 3.0), rng.normal(scale=0.05, size=3),
+                                width=renderer.width, height=renderer.height, fov_deg=rng.uniform(20, 60))
+        culled = renderer.render(mesh, cam, passes=("gbuffer", "rgb"), supersample=2)
+        both = renderer.render(_as_open(mesh), cam, passes=("gbuffer", "rgb"), supersample=2)
+        # a pixel centre exactly on a silhouette edge may go to either face
+        same = culled["face_id"] == both["face_id"]
+        assert same.mean() >= 0.995 and (culled["face_id"] >= 0).sum() > 100
+        np.testing.assert_array_equal(culled["depth"][same], both["depth"][same])
+        assert np.abs(culled["rgb"] - both["rgb"]).max() <= 2 / 255
+        np.testing.assert_array_equal(culled["alpha"], both["alpha"])
+
+
+def test_open_meshes_show_their_inside(renderer, rng):
+    """A box without its top, seen from above: the inside of the bottom and the walls
+    (faces turned away from the camera) must be drawn."""
+    b = box(rng)
+    top = b.face_normals[:, 2] > 0.9
+    mesh = gs.Mesh(b.vertices, b.faces[~top], uvs=b.uvs, face_uvs=b.face_uvs[~top], texture=b.texture)
+    assert mesh.closed_orientation == 0
+    cam = gs.Camera.look_at((0, 0, 1.5), (0, 0, 0), width=renderer.width, height=renderer.height)
+    out = renderer.render(mesh, cam, passes=("gbuffer",))
+    centre = out["face_id"][renderer.height // 2, renderer.width // 2]
+    assert centre >= 0 and mesh.face_normals[centre][2] < -0.9  # the bottom, from inside
