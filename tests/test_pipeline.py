@@ -176,3 +176,16 @@ def test_cli_reports_config_errors(tmp_path, capsys):
     from glsynth.cli import main
     assert main(["generate", "--out", str(tmp_path), "--set", "views.per_body=-3"]) == 2
     assert "views.per_body" in capsys.readouterr().err
+
+
+def test_depth_tiff_is_lossless_and_readable_by_opencv(tmp_path):
+    import tifffile
+    from glsynth.pipeline.writer import write_depth
+    rng = np.random.default_rng()
+    depth = rng.uniform(0.05, 40.0, size=(61, 77)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.4] = -1.0
+    depth[0, 0], depth[0, 1] = np.finfo(np.float32).tiny, np.float32(1e-30)
+    path = tmp_path / "d.tiff"
+    write_depth(path, depth)
+    np.testing.assert_array_equal(tifffile.imread(path), depth)
+    np.testing.assert_array_equal(read_image(path), depth)  # libtiff inside OpenCV

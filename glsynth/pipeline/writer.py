@@ -42,9 +42,11 @@ def write_sample(out_dir, sample_id, layers: dict, meta: dict, outputs):
 def write_depth(path, depth):
     import tifffile
     buf = io.BytesIO()
-    # zlib level 1: faster than the default level, files barely larger
+    # Deflate (level 1) after TIFF's floating-point predictor (imagecodecs): half the size
+    # of plain Deflate at a third of the time (512^2: 292 kB in 4.2 ms vs 584 kB in 12 ms
+    # with Python's zlib), and still read by libtiff, OpenCV, GDAL and tifffile.
     tifffile.imwrite(buf, depth.astype(np.float32), compression="zlib", compressionargs={"level": 1},
-                     metadata=None)
+                     predictor=3, metadata=None)
     write_bytes(path, buf.getvalue())
 
 
