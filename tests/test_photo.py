@@ -124,6 +124,22 @@ def test_noise_statistics_match_the_model(shot, read):
     assert abs(back.mean() - x) < 2e-3
 
 
+def test_noise_is_reproducible_from_its_seed_in_any_thread():
+    from concurrent.futures import ThreadPoolExecutor
+    lin = np.full((64, 80, 3), 0.3, np.float32)
+    first = photo.add_noise(lin, 0.01, 0.01, seed=1234)
+    with ThreadPoolExecutor(4) as pool:
+        runs = list(pool.map(lambda s: photo.add_noise(lin, 0.01, 0.01, seed=s), [1234, 99, 1234, 99]))
+    np.testing.assert_array_equal(runs[0], first)
+    np.testing.assert_array_equal(runs[2], first)
+    np.testing.assert_array_equal(runs[1], runs[3])
+    assert not np.array_equal(runs[1], first)
+    # uncorrelated across pixels and channels
+    n = (first - 0.3).reshape(-1, 3)
+    assert abs(np.corrcoef(n[:-1, 0], n[1:, 0])[0, 1]) < 0.05
+    assert abs(np.corrcoef(n[:, 0], n[:, 2])[0, 1]) < 0.05
+
+
 def test_white_balance_and_exposure_act_in_linear_space():
     img = np.full((8, 8, 3), 100, np.uint8)
     p = {"enabled": True, "effects": {"exposure": {"ev": 1.0},
