@@ -26,7 +26,7 @@ void main() {
     out_bary = vec4(b, 0.0);
     out_uv = g_uv * b;
 #if LABELS
-    uvec4 l = fetch_labels(out_uv);
+    uvec4 l = fetch_labels(out_uv, g_face, b);
     out_label0 = l.x;
     out_label1 = l.y;
     out_label2 = l.z;

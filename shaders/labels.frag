@@ -9,7 +9,8 @@ layout(location = 2) out uint out2;
 layout(location = 3) out uint out3;
 
 void main() {
-    uvec4 l = fetch_labels(g_uv * surface_bary());
+    vec3 b = surface_bary();
+    uvec4 l = fetch_labels(g_uv * b, g_face, b);
     out0 = l.x;
     out1 = l.y;
     out2 = l.z;

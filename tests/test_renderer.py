@@ -245,6 +245,26 @@ def test_vertex_labels_exact(renderer, rng):
     assert np.all([img[fg][i] in labels[corners[i]] for i in range(0, fg.sum(), 97)])
 
 
+@pytest.mark.parametrize("trial", range(3))
+def test_vertex_labels_in_the_label_pass_equal_the_numpy_lookup(renderer, rng, trial):
+    mesh = (sphere(rng, subdivisions=int(rng.integers(1, 5))) if trial != 1 else box(rng))
+    vertex_labels = rng.integers(0, 65536, size=len(mesh.vertices)).astype(np.int64)
+    nonskin = rng.integers(0, 3, size=(37, 53)).astype(np.uint8)
+    d = rng.normal(size=3)
+    cam = gs.Camera.look_at(d / np.linalg.norm(d) * rng.uniform(0.6, 2.0), rng.normal(scale=0.05, size=3),
+                            width=renderer.width, height=renderer.height, fov_deg=rng.uniform(20, 60))
+    out = renderer.render(mesh, cam, passes=("gbuffer", "labels"), label_textures={"nonskin": nonskin},
+                          vertex_labels={"part": vertex_labels})
+    np.testing.assert_array_equal(out["part"], vertex_label_image(out, mesh, vertex_labels))
+    # the UV-space map in the same draw is unaffected, and the label pass alone agrees
+    alone = renderer.render(mesh, cam, passes=("labels",), label_textures={"nonskin": nonskin},
+                            vertex_labels={"part": vertex_labels})
+    np.testing.assert_array_equal(alone["part"], out["part"])
+    np.testing.assert_array_equal(alone["nonskin"], out["nonskin"])
+    with pytest.raises(ValueError, match="vertex labels must be"):
+        renderer.render(mesh, cam, passes=("labels",), vertex_labels={"part": vertex_labels[:-1]})
+
+
 def test_supersampled_rgb_and_alpha(renderer, rng):
     mesh = sphere(rng)
     cam = gs.Camera.look_at((0, 0, 1.2), (0, 0, 0), width=renderer.width, height=renderer.height)

@@ -53,6 +53,7 @@ class _MeshOnGPU:
         self.vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
         self.count = len(corners)
         self.vaos = {}
+        self._corner_labels = {}  # id(vertex label array) -> (array, texture)
         self.texture = None
         if mesh.texture is not None:
             h, w = mesh.texture.shape[:2]
@@ -72,7 +73,31 @@ class _MeshOnGPU:
             vao = self.vaos[name] = self.ctx.vertex_array(prog, [(self.vbo, fmt, *attrs)])
         return vao
 
+    def corner_labels(self, vertex_labels: np.ndarray, mesh: Mesh):
+        """Texture of ``vertex_labels`` at each face corner (index face * 3 + corner,
+        rows of 4096), uploaded once per label array (treated as immutable)."""
+        entry = self._corner_labels.get(id(vertex_labels))
+        if entry is not None and entry[0] is vertex_labels:
+            return entry[1]
+        if vertex_labels.shape != (len(mesh.vertices),) or not np.issubdtype(vertex_labels.dtype, np.integer):
+            raise ValueError(f"{mesh.name}: vertex labels must be {len(mesh.vertices)} integers, "
+                             f"got {vertex_labels.dtype} {vertex_labels.shape}")
+        if vertex_labels.min() < 0 or vertex_labels.max() > 65535:
+            raise ValueError(f"{mesh.name}: vertex label ids must be in [0, 65535]")
+        corners = vertex_labels[mesh.faces].reshape(-1).astype(np.uint16)
+        width = 4096
+        data = np.zeros(-(-len(corners) // width) * width, np.uint16)
+        data[:len(corners)] = corners
+        tex = self.ctx.texture((width, len(data) // width), 1, data.tobytes(), dtype="u2", alignment=2)
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        if entry is not None:
+            entry[1].release()
+        self._corner_labels[id(vertex_labels)] = (vertex_labels, tex)
+        return tex
+
     def release(self):
+        for _, tex in self._corner_labels.values():
+            tex.release()
         for vao in self.vaos.values():
             vao.release()
         self.vbo.release()
@@ -232,7 +257,7 @@ class Renderer:
     # ---- rendering ----------------------------------------------------------------
     def render(self, mesh: Mesh, camera: Camera, passes=("gbuffer", "rgb"), lights=None,
                material=None, label_texture=None, label_textures=None, supersample=1,
-               shadows=False, buffers=None):
+               shadows=False, buffers=None, vertex_labels=None):
         """Render ``mesh`` from ``camera``.
 
         passes: any of 'gbuffer', 'rgb', 'labels'. Returns a dict of numpy arrays
@@ -243,20 +268,22 @@ class Renderer:
                    supersampling); ``shadows=True`` first renders a shadow map from the
                    first light (soft shadows on its diffuse and specular terms)
           labels:  labels uint16 (from ``label_texture``) or one uint16 array per name
-                   of ``label_textures`` (at most 4 per call)
+                   of ``label_textures`` (UV-space maps) and of ``vertex_labels``
+                   (per-vertex integer arrays: each pixel takes the label of its face's
+                   corner with the largest barycentric weight, as ``vertex_label_image``);
+                   at most 4 per call
         ``buffers``: the names above to read back (default: all that the passes make);
         the others are drawn but never copied to memory (face_id is always read with the
-        G-buffer, rgb and alpha come together). Vertex/face labels (anatomy) come from the G-buffer: see
-        ``vertex_label_image``.
+        G-buffer, rgb and alpha come together).
         """
         # Another library (pyrender, a GUI toolkit) may have made its own context
         # current since the last call: always draw in ours.
         with self.ctx:
-            return self._render(mesh, camera, tuple(passes), lights, material,
-                                label_texture, label_textures, supersample, shadows, buffers)
+            return self._render(mesh, camera, tuple(passes), lights, material, label_texture,
+                                label_textures, supersample, shadows, buffers, vertex_labels)
 
     def _render(self, mesh, camera, passes, lights, material, label_texture,
-                label_textures, supersample, shadows=False, buffers=None):
+                label_textures, supersample, shadows=False, buffers=None, vertex_labels=None):
         unknown = set(passes) - set(PASSES)
         if unknown:
             raise ValueError(f"unknown pass(es) {sorted(unknown)}; choose from {PASSES}")
@@ -270,7 +297,7 @@ class Renderer:
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         labels = None
         if "labels" in passes:
-            labels = self._bind_labels(label_texture, label_textures)
+            labels = self._bind_labels(gpu, mesh, label_texture, label_textures, vertex_labels)
         if want is not None:
             known = set(GBUFFER_LAYERS) | {"rgb", "alpha"} | set(labels or ())
             if want - known:
@@ -388,24 +415,29 @@ class Renderer:
         rgba = self._read(fbo, 0, 4, "f4", np.float32)
         return {"rgb": np.ascontiguousarray(rgba[..., :3]), "alpha": np.ascontiguousarray(rgba[..., 3])}
 
-    def _bind_labels(self, label_texture, label_textures) -> list:
-        """Upload (once) and bind the label textures of a render; returns their names."""
-        if label_textures is None:
-            if label_texture is None:
-                raise ValueError("the labels pass needs label_texture= or label_textures=")
+    def _bind_labels(self, gpu, mesh, label_texture, label_textures, vertex_labels) -> list:
+        """Upload (once) and bind the label maps of a render; returns their names."""
+        if label_textures is None and label_texture is not None:
             label_textures = {"labels": label_texture}
         elif label_texture is not None:
             raise ValueError("pass either label_texture or label_textures, not both")
-        items = list(label_textures.items())
-        if not 1 <= len(items) <= MAX_LABEL_TARGETS:
-            raise ValueError(f"1 to {MAX_LABEL_TARGETS} label textures per render, got {len(items)}")
+        items = list((label_textures or {}).items())
+        per_vertex = list((vertex_labels or {}).items())
+        if not 1 <= len(items) + len(per_vertex) <= MAX_LABEL_TARGETS:
+            raise ValueError(f"the labels pass takes 1 to {MAX_LABEL_TARGETS} label maps "
+                             "(label_texture=, label_textures= or vertex_labels=), got "
+                             f"{len(items) + len(per_vertex)}")
         in_use = {id(arr) for _, arr in items}
         textures = [self._label_texture(arr, in_use) for _, arr in items]
+        textures += [gpu.corner_labels(np.asarray(arr), mesh) for _, arr in per_vertex]
         for i in range(MAX_LABEL_TARGETS):  # unused samplers still need a valid texture
             textures[min(i, len(textures) - 1)].use(i + 2)  # units 0, 1: colour, shadow map
+        per_corner = [0] * len(items) + [1] * len(per_vertex)
+        per_corner += [0] * (MAX_LABEL_TARGETS - len(per_corner))
         for name in ("labels", "gbuffer+labels"):
-            self.programs[name]["u_count"].value = len(items)
-        return [name for name, _ in items]
+            self.programs[name]["u_count"].value = len(textures)
+            self.programs[name]["u_per_corner"].value = tuple(per_corner)
+        return [name for name, _ in items + per_vertex]
 
     def _render_labels(self, gpu, mats, names, size):
         fbo = self._fbo("labels", *size)

@@ -14,7 +14,6 @@ import cv2
 import numpy as np
 
 from ..camera import Camera
-from ..gl.renderer import vertex_label_image
 from ..lighting import Material, PointLight
 
 SEMANTIC_BACKGROUND, SEMANTIC_SKIN, SEMANTIC_LESION, SEMANTIC_NONSKIN = 0, 1, 2, 3
@@ -113,10 +112,10 @@ def passes_for(outputs) -> tuple:
 
 def buffers_for(outputs, labels) -> tuple:
     """The buffers a view reads back: face ids, depth and the label maps always (they
-    decide acceptance; depth drives defocus), barycentrics only for anatomy and normals,
-    UV only when written, colour only for RGB."""
+    decide acceptance; depth drives defocus; anatomy is one of the maps when asked for),
+    barycentrics only for normals, UV only when written, colour only for RGB."""
     need = ["face_id", "depth", *labels]
-    if "anatomy" in outputs or "normals" in outputs:
+    if "normals" in outputs:
         need.append("bary")
     if "uv" in outputs:
         need.append("uv")
@@ -130,9 +129,12 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     labels = {"instances": instances, "nonskin": body.nonskin}
     if nevi_map is not None:
         labels["nevi"] = nevi_map
+    # anatomy: each pixel takes its face corner's part label, drawn with the other labels
+    parts = {"anatomy": body.anatomy} if body.anatomy is not None and "anatomy" in outputs else {}
     out = renderer.render(mesh_b, scene.camera, passes=passes_for(outputs), lights=scene.lights,
-                          material=scene.material, label_textures=labels, supersample=v.supersample,
-                          shadows=v.shadows, buffers=buffers_for(outputs, labels))
+                          material=scene.material, label_textures=labels, vertex_labels=parts,
+                          supersample=v.supersample, shadows=v.shadows,
+                          buffers=buffers_for(outputs, [*labels, *parts]))
     body_px = out["face_id"] >= 0
     lesion = body_px & (out["instances"] > 0)
     nonskin = body_px & (out["nonskin"] > 0) & ~lesion
@@ -149,8 +151,8 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
               "boxes": instance_boxes(inst)}
     if "rgb" in out:
         layers["rgb"], layers["alpha"] = out["rgb"], out["alpha"]
-    if body.anatomy is not None and "anatomy" in outputs:
-        layers["anatomy"] = vertex_label_image(out, body.mesh, body.anatomy).astype(np.uint8)
+    if parts:
+        layers["anatomy"] = out["anatomy"].astype(np.uint8)
     if "face_id" in outputs:
         layers["face_id"] = out["face_id"].astype(np.int32)
     if "uv" in outputs:
