@@ -264,8 +264,8 @@ class Renderer:
         (H x W = camera.height x camera.width, row 0 at the top):
           gbuffer: face_id int32 (-1 background), bary float32 x3, depth float32
                    (view-space, > 0; -1 background), uv float32 x2
-          rgb:     rgb float32 x3 in [0, 1], alpha float32 (coverage, fractional with
-                   supersampling); ``shadows=True`` first renders a shadow map from the
+          rgb:     rgb float32 x3 in [0, 1], premultiplied by alpha (background samples
+                   are black), alpha float32 (coverage, fractional with supersampling); ``shadows=True`` first renders a shadow map from the
                    first light (soft shadows on its diffuse and specular terms)
           labels:  labels uint16 (from ``label_texture``) or one uint16 array per name
                    of ``label_textures`` (UV-space maps) and of ``vertex_labels``

@@ -202,10 +202,12 @@ def nevi_label_map(body):
 
 
 def composite(rgb, alpha, background, blur_radius):
-    """Body over the background (blurred with a Gaussian of the given radius)."""
+    """Body over the background (blurred with a Gaussian of the given radius). ``rgb``
+    is premultiplied by the coverage ``alpha``, as the renderer returns it: a pixel half
+    covered by the body holds half its colour."""
     bg = background.astype(np.float32) / 255
     if blur_radius > 0:
         sigma = max(blur_radius, 1e-3)
         bg = cv2.GaussianBlur(bg, (0, 0), sigmaX=sigma)
-    img = rgb * alpha[..., None] + bg * (1 - alpha[..., None])
+    img = rgb + bg * (1 - alpha[..., None])
     return np.clip(np.round(img * 255), 0, 255).astype(np.uint8)
