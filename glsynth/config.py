@@ -76,7 +76,8 @@ class ViewsConfig:
     per_body: int = 8
     size: int = 512
     fov_deg: float = 30.0
-    supersample: int = 2
+    supersample: int = 1              # k x k shading samples per pixel (box filter)
+    multisample: int = 4              # MSAA samples per pixel: anti-aliased silhouettes, shaded once
     w: list = field(default_factory=lambda: [0.1, 1.3])
     lesion_bias: float = 0.7          # probability that a view is centred on a lesion
     min_skin: float = 0.1
@@ -268,6 +269,8 @@ def validate(cfg: Config, source="config"):
     need(v.per_body >= 0, "views.per_body", v.per_body, "must be >= 0")
     need(32 <= v.size <= 4096, "views.size", v.size, "must be in [32, 4096]")
     need(1 <= v.supersample <= 8, "views.supersample", v.supersample, "must be in [1, 8]")
+    need(v.multisample in (0, 1, 2, 4, 8, 16), "views.multisample", v.multisample,
+         "must be 0 (off), 1, 2, 4, 8 or 16 (the GL may support fewer: llvmpipe 4)")
     need(0 < v.fov_deg < 170, "views.fov_deg", v.fov_deg, "must be in (0, 170)")
     _range(v.w, "views.w", source, 1e-4, 1e4)
     need(0 <= v.lesion_bias <= 1, "views.lesion_bias", v.lesion_bias, "must be in [0, 1]")

@@ -279,6 +279,35 @@ def test_supersampled_rgb_and_alpha(renderer, rng):
     assert np.isfinite(four["rgb"]).all()
 
 
+def test_multisampled_rgb_and_alpha(renderer, rng):
+    import cv2
+    mesh = sphere(rng) if rng.random() < 0.5 else box(rng)
+    smooth = cv2.GaussianBlur(rng.random((64, 64, 3)).astype(np.float32), (0, 0), 3)  # skin-like
+    smooth = (smooth - smooth.min()) / np.ptp(smooth)
+    mesh = mesh.copy_with(texture=(smooth * 255).astype(np.uint8))
+    d = rng.normal(size=3)
+    cam = gs.Camera.look_at(d / np.linalg.norm(d) * rng.uniform(0.9, 2.0), rng.normal(scale=0.05, size=3),
+                            width=renderer.width, height=renderer.height, fov_deg=rng.uniform(30, 60))
+    one = renderer.render(mesh, cam, passes=("rgb",))
+    ref = renderer.render(mesh, cam, passes=("rgb",), supersample=8)
+    msaa = renderer.render(mesh, cam, passes=("rgb",), multisample=4)
+    a = msaa["alpha"]
+    assert set(np.unique(a)) <= {0.0, 0.25, 0.5, 0.75, 1.0}
+    edge = (ref["alpha"] > 0) & (ref["alpha"] < 1)
+    assert edge.sum() > 20 and ((a > 0) & (a < 1)).sum() > 20
+    assert np.abs(a - ref["alpha"])[edge].mean() < 0.2       # 4 samples vs 64
+    err = lambda o, where: np.abs(o["rgb"] - ref["rgb"])[where].mean()
+    # silhouettes: much closer to the reference than one sample per pixel
+    assert err(msaa, edge) < 0.6 * err(one, edge)
+    # inside, shading runs once per pixel at a point of the GL's choosing (llvmpipe: a
+    # sample position, a quarter pixel off the centre): about as close as one sample
+    inside = (ref["alpha"] == 1) & (a == 1)
+    assert err(msaa, inside) <= max(3 * err(one, inside), 0.5 / 255)
+    for bad in (3, 2 * renderer.ctx.max_samples, -1):
+        with pytest.raises(ValueError, match="multisample"):
+            renderer.render(mesh, cam, passes=("rgb",), multisample=bad)
+
+
 def test_degenerate_faces_render(renderer, rng):
     base = sphere(rng, subdivisions=2)
     faces = np.vstack([base.faces, [[0, 0, 1], [2, 2, 2]]])  # zero-area faces

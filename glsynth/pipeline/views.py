@@ -133,7 +133,7 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     parts = {"anatomy": body.anatomy} if body.anatomy is not None and "anatomy" in outputs else {}
     out = renderer.render(mesh_b, scene.camera, passes=passes_for(outputs), lights=scene.lights,
                           material=scene.material, label_textures=labels, vertex_labels=parts,
-                          supersample=v.supersample, shadows=v.shadows,
+                          supersample=v.supersample, multisample=v.multisample, shadows=v.shadows,
                           buffers=buffers_for(outputs, [*labels, *parts]))
     body_px = out["face_id"] >= 0
     lesion = body_px & (out["instances"] > 0)
