@@ -391,3 +391,26 @@ def test_supersampled_edges_composite_without_a_dark_fringe(renderer, rng):
     np.testing.assert_allclose(out["rgb"][edge], np.repeat(out["alpha"][edge, None], 3, 1), atol=1e-6)
     white = np.full((renderer.height, renderer.width, 3), 255, np.uint8)
     assert (composite(out["rgb"], out["alpha"], white, 0) == 255).all()
+
+
+def test_uv_space_window_equals_the_crop_of_the_full_raster(renderer, rng):
+    from glsynth.pipeline.bodies import TexelGeometry
+    mesh = sphere(rng).copy_with(texture=np.zeros((200, 300, 3), np.uint8))
+    full = renderer.render_uv_space(mesh, 300, 200)
+    x0, y0 = int(rng.integers(0, 250)), int(rng.integers(0, 150))
+    box = (x0, y0, x0 + int(rng.integers(1, 50)), y0 + int(rng.integers(1, 50)))
+    win = renderer.render_uv_space(mesh, 300, 200, box=box)
+    np.testing.assert_array_equal(win["face_id"], full["face_id"][box[1]:box[3], box[0]:box[2]])
+    np.testing.assert_array_equal(win["bary"], full["bary"][box[1]:box[3], box[0]:box[2]])
+    # and the texel geometry of a window is the full geometry's texels inside it
+    only = rng.random((200, 300)) < 0.5
+    a = TexelGeometry.of(renderer, mesh, only=only)
+    b = TexelGeometry.of(renderer, mesh, only=only, box=box)
+    inside = (a.rows >= box[1]) & (a.rows < box[3]) & (a.cols >= box[0]) & (a.cols < box[2])
+    np.testing.assert_array_equal(b.rows, a.rows[inside])
+    np.testing.assert_array_equal(b.cols, a.cols[inside])
+    np.testing.assert_allclose(b.points, a.points[inside])
+    # a later full raster is not clipped by the window
+    np.testing.assert_array_equal(renderer.render_uv_space(mesh, 300, 200)["face_id"], full["face_id"])
+    with pytest.raises(ValueError, match="empty"):
+        renderer.render_uv_space(mesh, 300, 200, box=(10, 10, 10, 20))

@@ -57,14 +57,21 @@ class TexelGeometry:
     covered: np.ndarray   # (H, W) bool
 
     @classmethod
-    def of(cls, renderer, mesh, only=None):
-        """Geometry of every covered texel, or only of those where ``only`` (bool HxW)."""
+    def of(cls, renderer, mesh, only=None, box=None):
+        """Geometry of every covered texel, or only of those where ``only`` (bool HxW);
+        ``box`` (x0, y0, x1, y1) limits the work to a window of texels (``covered``
+        is then False outside it)."""
         h, w = mesh.texture.shape[:2]
-        raster = renderer.render_uv_space(mesh, w, h)
-        covered = raster["face_id"] >= 0
-        rows, cols = np.nonzero(covered if only is None else covered & only)
-        faces = raster["face_id"][rows, cols]
-        bary = raster["bary"][rows, cols].astype(np.float64)
+        raster = renderer.render_uv_space(mesh, w, h, box=box)
+        x0, y0 = (0, 0) if box is None else (max(int(box[0]), 0), max(int(box[1]), 0))
+        wh, ww = raster["face_id"].shape
+        covered = np.zeros((h, w), bool)
+        window = covered[y0:y0 + wh, x0:x0 + ww]
+        window[...] = raster["face_id"] >= 0
+        r, c = np.nonzero(window if only is None else window & only[y0:y0 + wh, x0:x0 + ww])
+        faces = raster["face_id"][r, c]
+        bary = raster["bary"][r, c].astype(np.float64)
+        rows, cols = r + y0, c + x0
         corners = mesh.faces[faces]
         points = np.einsum("nk,nkj->nj", bary, mesh.vertices[corners])
         normals = np.einsum("nk,nkj->nj", bary, mesh.vertex_normals[corners])

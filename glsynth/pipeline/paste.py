@@ -70,12 +70,18 @@ class PastedTextures:
 
     @classmethod
     def load(cls, folder, original):
-        from ..io.images import read_image, read_rgb
+        from ..io.images import read_rgb
+        instances, placements = cls.load_instances(folder)
+        return cls(original, read_rgb(os.path.join(folder, "pasted.png")), instances,
+                   read_rgb(os.path.join(folder, "dilated.png")), placements)
+
+    @staticmethod
+    def load_instances(folder):
+        """T_m and the placements: all that view generation needs besides the texture."""
+        from ..io.images import read_image
         with open(os.path.join(folder, "placements.json")) as fh:
             placements = [Placement(**p) for p in json.load(fh)]
-        return cls(original, read_rgb(os.path.join(folder, "pasted.png")),
-                   read_image(os.path.join(folder, "instances.png")).astype(np.uint16),
-                   read_rgb(os.path.join(folder, "dilated.png")), placements)
+        return read_image(os.path.join(folder, "instances.png")).astype(np.uint16), placements
 
     @staticmethod
     def exists(folder):

@@ -193,7 +193,8 @@ class Generate2DViews(_Stage):
         body = load_body(self.cfg, body_id)
         textured, instances, placements = self._textures(body_id, body)
         mesh_b = body.mesh.copy_with(texture=textured)
-        lesion_points = self._lesion_points(self.renderer, body, instances, placements)
+        # the textured mesh: it goes to the GPU for the views anyway (one upload)
+        lesion_points = self._lesion_points(self.renderer, mesh_b, instances, placements)
         state = (body, mesh_b, instances, V.nevi_label_map(body), placements, lesion_points,
                  self._backgrounds)
         self._state = (body_id, state)
@@ -205,18 +206,20 @@ class Generate2DViews(_Stage):
         h, w = body.mesh.texture.shape[:2]
         if self.cfg.lesions.per_body == 0 or not PastedTextures.exists(folder):
             return body.mesh.texture, np.zeros((h, w), np.uint16), []
-        pasted = PastedTextures.load(folder, body.mesh.texture)
+        instances, placements = PastedTextures.load_instances(folder)
         blended_path = os.path.join(folder, "blended.png")
-        texture = read_rgb(blended_path) if os.path.isfile(blended_path) else pasted.pasted
-        return texture, pasted.instances, pasted.placements
+        texture = read_rgb(blended_path if os.path.isfile(blended_path) else os.path.join(folder, "pasted.png"))
+        return texture, instances, placements
 
-    def _lesion_points(self, renderer, body, instances, placements):
+    def _lesion_points(self, renderer, mesh, instances, placements):
         if not placements:
             return []
-        tx = TexelGeometry.of(renderer, body.mesh, only=instances > 0)
-        ids = instances[tx.rows, tx.cols]
-        return [(tx.points[ids == p.instance], tx.normals[ids == p.instance])
-                for p in placements if (ids == p.instance).any()]
+        points = []
+        for p in placements:  # only each lesion's texel box is rasterised (~10 ms, not 240)
+            tx = TexelGeometry.of(renderer, mesh, only=instances == p.instance, box=p.texel_box)
+            if len(tx.rows):
+                points.append((tx.points, tx.normals))
+        return points
 
     def _one_view(self, renderer, body_id, body, mesh_b, instances, nevi_map, placements,
                   lesion_points, backgrounds, j, rejected):
