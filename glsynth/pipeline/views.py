@@ -144,8 +144,8 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
         raise ViewRejected(f"skin {skin.sum() / n:.3f} < views.min_skin {v.min_skin}")
     if lesion.sum() / n < v.min_lesion:
         raise ViewRejected(f"lesion {lesion.sum() / n:.3f} < views.min_lesion {v.min_lesion}")
-    semantic = np.zeros(body_px.shape, np.uint8)
-    semantic[skin], semantic[lesion], semantic[nonskin] = SEMANTIC_SKIN, SEMANTIC_LESION, SEMANTIC_NONSKIN
+    semantic = np.select([lesion, nonskin, skin], [SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN],
+                         SEMANTIC_BACKGROUND).astype(np.uint8)
     inst = np.where(lesion, out["instances"], 0).astype(np.uint16)
     layers = {"semantic": semantic, "instances": inst, "depth": out["depth"].astype(np.float32),
               "boxes": instance_boxes(inst)}
@@ -182,11 +182,13 @@ def camera_normals(out, mesh, camera) -> np.ndarray:
 def instance_boxes(inst) -> dict:
     """{id: [x0, y0, x1, y1]} minimal enclosing boxes; x1/y1 exclusive (pixels)."""
     boxes = {}
-    for k in np.unique(inst):
+    present = np.flatnonzero(np.bincount(inst.ravel())) if inst.size else []
+    for k in present:
         if k == 0:
             continue
-        ys, xs = np.nonzero(inst == k)
-        boxes[int(k)] = [int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1]
+        mask = inst == k
+        ys, xs = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
+        boxes[int(k)] = [int(xs[0]), int(ys[0]), int(xs[-1]) + 1, int(ys[-1]) + 1]
     return boxes
 
 
