@@ -591,7 +591,8 @@ def test_nevi_layers_only_with_nevi(small_scene):
             return getattr(sc.r, k)
 
         def render(self, *a, **k):
-            seen.append(sorted(k.get("label_textures", {})))
+            if "labels" in k.get("passes", ()):
+                seen.append(sorted(k.get("label_textures", {})))
             return orig(*a, **k)
     body = sc.body
     assert V.nevi_label_map(body) is None
@@ -604,6 +605,23 @@ def test_nevi_layers_only_with_nevi(small_scene):
     assert nevi is not None and nevi.max() == 1
     layers = V.render_view(Spy(), with_nevi, body.mesh, sc.pasted.instances, nevi, scene, v, ["rgb"])
     assert "nevi" in seen[-1] and "nevi_boxes" in layers
+
+
+def test_views_whose_camera_does_not_see_its_point_are_rejected(small_scene):
+    from glsynth.config import ViewsConfig
+    from glsynth.pipeline import views as V
+    sc = small_scene
+    cam = gs.Camera.from_dict(sc.placement.camera)
+    v = ViewsConfig(size=64, min_skin=0.0)
+    target = np.asarray(cam.target, float)
+    forward = (target - np.asarray(cam.eye)) / np.linalg.norm(target - np.asarray(cam.eye))
+    seen = V.ViewScene(cam, gs.PointLight(cam.eye), gs.Material(), "surface", point=target)
+    assert "semantic" in V.render_view(sc.r, sc.body, sc.body.mesh, sc.pasted.instances, None, seen, v,
+                                       ["rgb", "semantic"])
+    for point in (target + 0.05 * forward, target - 0.05 * forward):  # behind / before the surface
+        hidden = V.ViewScene(cam, gs.PointLight(cam.eye), gs.Material(), "surface", point=point)
+        with pytest.raises(V.ViewRejected, match="hidden"):
+            V.render_view(sc.r, sc.body, sc.body.mesh, sc.pasted.instances, None, hidden, v, ["semantic"])
 
 
 def test_views_of_a_body_without_skin_give_up_after_the_attempt_bound(tmp_path, monkeypatch, small_scene):

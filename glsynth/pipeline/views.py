@@ -26,6 +26,9 @@ class ViewScene:
     material: Material
     centre: str              # 'lesion k' or 'surface'
     flash: PointLight | None = None   # optional flash at the camera
+    # the surface point the camera looks at: when set, render_view rejects the view
+    # unless it is the first surface on the central ray (camera outside, point not hidden)
+    point: np.ndarray | None = None
 
     @property
     def lights(self) -> list:
@@ -37,8 +40,9 @@ class ViewRejected(Exception):
 
 
 def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None) -> ViewScene:
-    """One camera + light(s) + material; raises ViewRejected when the camera is inside
-    the mesh or the light is blocked. ``ambient_tint`` (RGB gains, see
+    """One camera + light(s) + material; raises ViewRejected when the light is blocked
+    (whether the camera sees its point is checked on the view's own G-buffer by
+    ``render_view``, which saves a draw per view). ``ambient_tint`` (RGB gains, see
     ``ambient_tint_from``) colours the room light's ambient term. Wrap lighting and the
     flash draw random numbers only when the config turns them on, so configs without
     them give the same scenes as before."""
@@ -59,8 +63,6 @@ def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None) -> Vi
         raise ViewRejected("zero normal")
     w = rng.uniform(*v.w)
     cam = Camera.from_surface(point, normal, w, fov_deg=v.fov_deg, width=v.size, height=v.size)
-    if not _sees_point(renderer, mesh, cam, point):
-        raise ViewRejected("camera inside the mesh or the point is hidden")
     # light near the camera, in a random direction, unblocked on its way to the point
     direction = rng.normal(size=3)
     direction /= np.linalg.norm(direction)
@@ -83,7 +85,7 @@ def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None) -> Vi
         # a phone flash sits next to the lens: no ambient, the camera sees what it lights
         flash = PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(*v.flash_diffuse),
                            specular=rng.uniform(*v.flash_specular))
-    return ViewScene(cam, light, material, centre, flash)
+    return ViewScene(cam, light, material, centre, flash, point=np.asarray(point, np.float64))
 
 
 def ambient_tint_from(background, strength) -> tuple:
@@ -98,16 +100,16 @@ def ambient_tint_from(background, strength) -> tuple:
 def _sees_point(renderer, mesh, cam, point) -> bool:
     """True when the first surface along the camera's central ray is ``point``."""
     crop = cam.crop(cam.width // 2 - 1, cam.height // 2 - 1, 2, 2)
-    out = renderer.render(mesh, crop, passes=("gbuffer",))
+    return _centre_is(renderer.render(mesh, crop, passes=("gbuffer",))["depth"], cam, point)
+
+
+def _centre_is(depth, cam, point) -> bool:
+    """True when one of the 2x2 pixels at the centre of ``depth`` (cam's view depth;
+    any size) lies at ``point``'s distance (2% tolerance)."""
+    h, w = depth.shape
+    d = depth[max(h // 2 - 1, 0):h // 2 + 1, max(w // 2 - 1, 0):w // 2 + 1]
     dist = float(np.linalg.norm(np.asarray(cam.eye) - point))
-    d = out["depth"]
     return bool(((d > 0) & (np.abs(d - dist) <= 0.02 * dist + 1e-4)).any())
-
-
-def passes_for(outputs) -> tuple:
-    """The passes a view needs: the G-buffer and label pass always (they decide
-    acceptance and give depth, anatomy and masks), shading only when RGB is asked for."""
-    return ("gbuffer", "rgb", "labels") if "rgb" in outputs else ("gbuffer", "labels")
 
 
 def buffers_for(outputs, labels) -> tuple:
@@ -119,22 +121,22 @@ def buffers_for(outputs, labels) -> tuple:
         need.append("bary")
     if "uv" in outputs:
         need.append("uv")
-    if "rgb" in outputs:
-        need += ["rgb", "alpha"]
     return tuple(need)
 
 
 def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v, outputs):
-    """Render one view; returns the layers dict (numpy) or raises ViewRejected."""
+    """Render one view; returns the layers dict (numpy) or raises ViewRejected. The
+    G-buffer and labels come first and decide acceptance; the shading pass (only when
+    RGB is asked for) runs for accepted views only."""
     labels = {"instances": instances, "nonskin": body.nonskin}
     if nevi_map is not None:
         labels["nevi"] = nevi_map
     # anatomy: each pixel takes its face corner's part label, drawn with the other labels
     parts = {"anatomy": body.anatomy} if body.anatomy is not None and "anatomy" in outputs else {}
-    out = renderer.render(mesh_b, scene.camera, passes=passes_for(outputs), lights=scene.lights,
-                          material=scene.material, label_textures=labels, vertex_labels=parts,
-                          supersample=v.supersample, multisample=v.multisample, shadows=v.shadows,
-                          buffers=buffers_for(outputs, [*labels, *parts]))
+    out = renderer.render(mesh_b, scene.camera, passes=("gbuffer", "labels"), label_textures=labels,
+                          vertex_labels=parts, buffers=buffers_for(outputs, [*labels, *parts]))
+    if scene.point is not None and not _centre_is(out["depth"], scene.camera, scene.point):
+        raise ViewRejected("camera inside the mesh or the point is hidden")
     body_px = out["face_id"] >= 0
     lesion = body_px & (out["instances"] > 0)
     nonskin = body_px & (out["nonskin"] > 0) & ~lesion
@@ -149,8 +151,11 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     inst = np.where(lesion, out["instances"], 0).astype(np.uint16)
     layers = {"semantic": semantic, "instances": inst, "depth": out["depth"].astype(np.float32),
               "boxes": instance_boxes(inst)}
-    if "rgb" in out:
-        layers["rgb"], layers["alpha"] = out["rgb"], out["alpha"]
+    if "rgb" in outputs:
+        shaded = renderer.render(mesh_b, scene.camera, passes=("rgb",), lights=scene.lights,
+                                 material=scene.material, supersample=v.supersample,
+                                 multisample=v.multisample, shadows=v.shadows)
+        layers["rgb"], layers["alpha"] = shaded["rgb"], shaded["alpha"]
     if parts:
         layers["anatomy"] = out["anatomy"].astype(np.uint8)
     if "face_id" in outputs:
