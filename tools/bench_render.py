@@ -92,9 +92,9 @@ def main(argv=None):
         "(b) shading": lambda c: r.render(mesh, c, passes=("rgb",), lights=light(c)),
         "(c) all passes": lambda c: r.render(mesh, c, passes=("gbuffer", "rgb", "labels"),
                                              lights=light(c), label_texture=labels),
-        "(e) a generated view's passes (2 label maps, 2x supersampling, shadows)":
+        "(e) a generated view's passes (2 label maps, 4x MSAA, shadows)":
             lambda c: r.render(mesh, c, passes=("gbuffer", "rgb", "labels"), lights=light(c),
-                               label_textures={"a": labels, "b": labels}, supersample=2,
+                               label_textures={"a": labels, "b": labels}, multisample=4,
                                shadows=True),
     }
     results = {name: median_ms(fn, cams) for name, fn in rows.items()}
