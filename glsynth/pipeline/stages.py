@@ -169,8 +169,9 @@ class Generate2DViews(_Stage):
         # Compositing, the camera model and encoding run in background threads while the
         # next view renders (OpenCV, zlib and numpy release the GIL).
         with SampleWriter(threads=self.writer_threads) as writer:
-            for body_id, j in todo:
+            for t, (body_id, j) in enumerate(todo):
                 state = self._body_state(body_id)
+                self._prefetch_backgrounds(todo[t:t + self.prefetch_views])
                 t0 = time.perf_counter()
                 finish = self._one_view(self.renderer, body_id, *state, j, rejected)
                 if finish is not None:
@@ -181,6 +182,38 @@ class Generate2DViews(_Stage):
         if rejected:
             log.info("rejected views: %s", ", ".join(f"{n}x {r}" for r, n in sorted(rejected.items())))
         return rejected
+
+    prefetch_views = 6  # backgrounds made this many views ahead
+
+    def _tint_background_choice(self, body_id, j, n_backgrounds):
+        """(index, blur) of view j's background when the room tints the light: drawn
+        from its own generator before the scene, so it can be known ahead."""
+        rng = rng_for(self.cfg.seed, "background", body_id, j)
+        return int(rng.integers(n_backgrounds)), float(rng.uniform(*self.cfg.backgrounds.blur))
+
+    def _prefetch_backgrounds(self, upcoming):
+        """Make (or decode and resize) the backgrounds of the coming views in a helper
+        thread: a procedural room costs ~50 ms of numpy and OpenCV, which kept the
+        render thread waiting at every room's first use."""
+        if self.cfg.views.ambient_tint <= 0 or getattr(self, "_backgrounds", None) is None:
+            return  # without tint the index is drawn after the scene: not known ahead
+        from concurrent.futures import ThreadPoolExecutor
+        if getattr(self, "_bg_pool", None) is None:
+            self._bg_pool = ThreadPoolExecutor(1, thread_name_prefix="glsynth-backgrounds")
+            self._bg_futures = {}
+        size = self.cfg.views.size
+        for body_id, j in upcoming:
+            i, _ = self._tint_background_choice(body_id, j, len(self._backgrounds))
+            if i not in self._bg_futures:
+                self._bg_futures[i] = self._bg_pool.submit(self._backgrounds.get, i, size, size)
+
+    def _background(self, i):
+        """Background ``i`` at the view size (waiting for its prefetch if one runs)."""
+        future = getattr(self, "_bg_futures", {}).pop(i, None)
+        if future is not None:
+            return future.result()
+        size = self.cfg.views.size
+        return self._backgrounds.get(i, size, size)
 
     def _body_state(self, body_id):
         """Everything views of one body share; the last body's is kept."""
@@ -233,10 +266,8 @@ class Generate2DViews(_Stage):
         if v.ambient_tint > 0:
             # the room's colour must be known before shading: the background is drawn
             # first, from its own generator (the view's stream stays as it was)
-            bg_rng = rng_for(cfg.seed, "background", body_id, j)
-            bg_index = int(bg_rng.integers(len(backgrounds)))
-            blur = float(bg_rng.uniform(*cfg.backgrounds.blur))
-            background = backgrounds.get(bg_index, v.size, v.size)
+            bg_index, blur = self._tint_background_choice(body_id, j, len(backgrounds))
+            background = self._background(bg_index)
             tint = V.ambient_tint_from(background, v.ambient_tint)
         for attempt in range(1, v.attempts + 1):
             try:
