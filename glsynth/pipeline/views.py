@@ -92,7 +92,7 @@ def ambient_tint_from(background, strength) -> tuple:
     """RGB gains (mean 1) that tint the ambient light towards the background's average
     colour, so the body sits in the room's light: ``1 + strength * (c / mean(c) - 1)``
     with each ratio clipped to [0.5, 1.5]."""
-    c = np.asarray(background, np.float64).reshape(-1, 3).mean(0)
+    c = np.asarray(cv2.mean(np.ascontiguousarray(background))[:3], np.float64)  # no float copy
     c = np.clip(c / max(c.mean(), 1e-6), 0.5, 1.5)
     return tuple((1 + float(strength) * (c - 1)).tolist())
 
