@@ -124,7 +124,8 @@ class Mesh:
         f = self.faces
         if (f[:, 0] == f[:, 1]).any() or (f[:, 1] == f[:, 2]).any() or (f[:, 0] == f[:, 2]).any():
             return 0
-        n = np.int64(len(self.vertices))
+        nv = len(self.vertices)
+        n = np.int64(nv)
         directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         keys = directed[:, 0] * n + directed[:, 1]
         reverse = directed[:, 1] * n + directed[:, 0]
@@ -140,7 +141,6 @@ class Mesh:
         # inward would show its far side through its near side when culled
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
-        nv = len(self.vertices)
         graph = coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(nv, nv))
         _, part = connected_components(graph, directed=False)
         a, b, c = (self.vertices[f[:, i]] for i in range(3))

@@ -38,6 +38,17 @@ def _half_float_texels(texture):
     return cv2.LUT(np.ascontiguousarray(texture), _U8_TO_HALF.reshape(256, 1)).tobytes()
 
 
+def _label_ids(arr: np.ndarray, what: str) -> np.ndarray:
+    """Integer (or bool) label ids as uint16, or a ValueError naming ``what``."""
+    if arr.dtype == np.bool_:
+        arr = arr.astype(np.uint8)
+    if not np.issubdtype(arr.dtype, np.integer):
+        raise ValueError(f"{what} must have an integer dtype, got {arr.dtype}")
+    if arr.size and (arr.min() < 0 or arr.max() > 65535):
+        raise ValueError(f"{what}: label ids must be in [0, 65535], got [{arr.min()}, {arr.max()}]")
+    return arr.astype(np.uint16)
+
+
 class _MeshOnGPU:
     """Unindexed corner buffer (3 corners per face, in face order) of one mesh, with a
     vertex array per program made on first use."""
@@ -82,12 +93,10 @@ class _MeshOnGPU:
         entry = self._corner_labels.get(id(vertex_labels))
         if entry is not None and entry[0] is vertex_labels:
             return entry[1]
-        if vertex_labels.shape != (len(mesh.vertices),) or not np.issubdtype(vertex_labels.dtype, np.integer):
+        if vertex_labels.shape != (len(mesh.vertices),):
             raise ValueError(f"{mesh.name}: vertex labels must be {len(mesh.vertices)} integers, "
-                             f"got {vertex_labels.dtype} {vertex_labels.shape}")
-        if vertex_labels.min() < 0 or vertex_labels.max() > 65535:
-            raise ValueError(f"{mesh.name}: vertex label ids must be in [0, 65535]")
-        corners = vertex_labels[mesh.faces].reshape(-1).astype(np.uint16)
+                             f"got shape {vertex_labels.shape}")
+        corners = _label_ids(vertex_labels, f"{mesh.name}: vertex labels")[mesh.faces].reshape(-1)
         width = 4096
         data = np.zeros(-(-len(corners) // width) * width, np.uint16)
         data[:len(corners)] = corners
@@ -198,13 +207,7 @@ class Renderer:
         arr = np.asarray(labels)
         if arr.ndim != 2:
             raise ValueError(f"label texture must be a 2D integer array, got shape {arr.shape}")
-        if arr.dtype == np.bool_:
-            arr = arr.astype(np.uint8)
-        if not np.issubdtype(arr.dtype, np.integer):
-            raise ValueError(f"label texture must have an integer dtype, got {arr.dtype}")
-        if arr.size and (arr.min() < 0 or arr.max() > 65535):
-            raise ValueError(f"label ids must be in [0, 65535], got [{arr.min()}, {arr.max()}]")
-        data = np.ascontiguousarray(arr.astype(np.uint16))
+        data = np.ascontiguousarray(_label_ids(arr, "label texture"))
         tex = self.ctx.texture((arr.shape[1], arr.shape[0]), 1, data.tobytes(), dtype="u2",
                                alignment=2)
         tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -311,7 +314,7 @@ class Renderer:
         out = {}
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        ctx.disable(moderngl.BLEND)
         labels = None
         if "labels" in passes:
             labels = self._bind_labels(gpu, mesh, label_texture, label_textures, vertex_labels)
@@ -488,8 +491,10 @@ class Renderer:
         if cull and gpu.closed_orientation:
             self.ctx.enable(moderngl.CULL_FACE)
             self.ctx.cull_face = "back" if gpu.closed_orientation > 0 else "front"
+        else:  # whatever another draw or library left enabled
+            self.ctx.disable(moderngl.CULL_FACE)
         gpu.vao(prog_name, prog).render(moderngl.TRIANGLES, vertices=gpu.count)
-        self.ctx.disable(moderngl.CULL_FACE)
+        self.ctx.disable(moderngl.CULL_FACE)  # full-screen passes (resolve) draw both sides
 
     def render_uv_space(self, mesh: Mesh, width: int, height: int, box=None) -> dict:
         """Rasterise ``mesh`` in texture space at ``width`` x ``height`` texels.
@@ -512,7 +517,7 @@ class Renderer:
         with self.ctx:
             gpu = self._gpu_mesh(mesh)
             fbo = self._fbo("gbuffer", width, height)
-            self.ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE | moderngl.BLEND)
+            self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
             fbo.scissor = window
             try:
                 self._draw(gpu, "uvspace", fbo, {}, cull=False)  # UV-space winding is arbitrary
@@ -558,7 +563,7 @@ class Renderer:
             gpu = self._gpu_mesh(mesh)
             prog = self._shading_program(gpu, mesh, camera, lights, material, False)
             self.ctx.enable(moderngl.DEPTH_TEST)
-            self.ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+            self.ctx.disable(moderngl.BLEND)
             fbo = self._fbo("rgb" if dtype == "f4" else "display", camera.width, camera.height)
             self._draw(gpu, prog, fbo, self._matrices(mesh, camera))
             return fbo

@@ -113,9 +113,9 @@ def _centre_is(depth, cam, point) -> bool:
 
 
 def buffers_for(outputs, labels) -> tuple:
-    """The buffers a view reads back: face ids, depth and the label maps always (they
-    decide acceptance; depth drives defocus; anatomy is one of the maps when asked for),
-    barycentrics only for normals, UV only when written, colour only for RGB."""
+    """The buffers a view's G-buffer + labels pass reads back: face ids, depth and the
+    label maps always (they decide acceptance; depth drives defocus; anatomy is one of
+    the maps when asked for), barycentrics only for normals, UV only when written."""
     need = ["face_id", "depth", *labels]
     if "normals" in outputs:
         need.append("bary")
