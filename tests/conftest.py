@@ -42,8 +42,9 @@ def renderer(gl_backend):
 
 @pytest.fixture
 def rng(request):
-    """A fresh random generator per test; the seed is printed on failure."""
-    seed = int.from_bytes(os.urandom(4), "little")
+    """A fresh random generator per test; the seed is printed on failure and
+    GLSYNTH_TEST_SEED replays it."""
+    seed = int(os.environ.get("GLSYNTH_TEST_SEED") or int.from_bytes(os.urandom(4), "little"))
     request.node.user_properties.append(("seed", seed))
     print(f"random seed: {seed}")
     return np.random.default_rng(seed)

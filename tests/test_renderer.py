@@ -2,6 +2,7 @@
 casting, pyrender's depth, and exact label look-ups. Runs once per GL backend."""
 import os
 
+import cv2
 import numpy as np
 import pytest
 
@@ -360,7 +361,14 @@ def test_culling_closed_meshes_changes_nothing_seen_from_outside(renderer, rng, 
         same = culled["face_id"] == both["face_id"]
         assert same.mean() >= 0.995 and (culled["face_id"] >= 0).sum() > 100
         np.testing.assert_array_equal(culled["depth"][same], both["depth"][same])
-        assert np.abs(culled["rgb"] - both["rgb"]).max() <= 2 / 255
+        # so may a subsample at the silhouette, where a back face shares the front face's
+        # edge: there one of the four subsamples may take a neighbouring face's colour
+        error = np.abs(culled["rgb"] - both["rgb"]).max(-1)
+        partly_covered = ((culled["alpha"] > 0) & (culled["alpha"] < 1)).astype(np.uint8)
+        silhouette = cv2.dilate(partly_covered, np.ones((3, 3), np.uint8)) > 0
+        assert np.max(error[~silhouette], initial=0) <= 2 / 255
+        assert np.max(error[silhouette], initial=0) <= 0.25 * 0.5
+        assert np.sum(error[silhouette] > 2 / 255) <= 0.05 * silhouette.sum()
         np.testing.assert_array_equal(culled["alpha"], both["alpha"])
 
 
