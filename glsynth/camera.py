@@ -127,14 +127,16 @@ class Camera:
         f = fh / 2 / math.tan(math.radians(self.fov_deg) / 2)
         return np.array([[f, 0.0, fw / 2 - x0], [0.0, f, fh / 2 - y0], [0, 0, 1.0]])
 
-    def clip_planes(self, bounds_min, bounds_max, vertices=None):
+    def clip_planes(self, bounds_min, bounds_max, vertices=None, distance=None):
         """Near/far planes that keep depth precise for this camera and scene.
 
         far: the farthest corner of the scene's bounding box (x1.01).
-        near: half the distance to the closest scene point we can bound cheaply (the
-        closest vertex when given, the look-at point, the bounding box). Triangles that
-        reach in front of the near plane are not clipped: the renderer enables depth
-        clamping, and depth values come from the exact view-space z, not the z-buffer.
+        near: half the distance to the scene: ``distance`` when the caller knows it
+        exactly (``Mesh.distance_to``: the renderer passes it), else the closest of the
+        look-at point, the bounding box and the ``vertices`` (a face can come nearer
+        than all its corners). Triangles that still reach in front of the near plane
+        are not clipped: the renderer enables depth clamping, and G-buffer depth values
+        come from the exact view-space z, not the z-buffer.
         The near/far ratio stays <= 1e5, which a 24-bit z-buffer resolves from
         w = 0.005 to w = 100 on metre-scale bodies; a camera closer than 5e-6 of the far
         distance (~0.01 mm for a body) raises ValueError instead of losing pixels.
@@ -144,12 +146,15 @@ class Camera:
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                             for z in (lo[2], hi[2])])
         far = float(np.linalg.norm(corners - eye, axis=1).max()) * 1.01 + 1e-9
-        closest = float(np.linalg.norm(np.asarray(self.target) - eye))
-        box_gap = float(np.linalg.norm(np.maximum(0, np.maximum(lo - eye, eye - hi))))
-        if box_gap > 0:
-            closest = min(closest, box_gap)
-        if vertices is not None and len(vertices):
-            closest = min(closest, float(np.sqrt(((vertices - eye) ** 2).sum(1).min())))
+        if distance is not None:
+            closest = float(distance)
+        else:
+            closest = float(np.linalg.norm(np.asarray(self.target) - eye))
+            box_gap = float(np.linalg.norm(np.maximum(0, np.maximum(lo - eye, eye - hi))))
+            if box_gap > 0:
+                closest = min(closest, box_gap)
+            if vertices is not None and len(vertices):
+                closest = min(closest, float(np.sqrt(((vertices - eye) ** 2).sum(1).min())))
         if closest < far * 5e-6:
             raise ValueError(
                 f"camera is {closest:.3g} from the surface, below 5e-6 of the scene's depth "

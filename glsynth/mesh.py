@@ -150,7 +150,29 @@ class Mesh:
             return 1
         return -1 if (volumes < 0).all() else 0
 
-    @property
+    @cached_property
+    def _face_longest_edge(self) -> np.ndarray:
+        v, f = self.vertices, self.faces
+        return np.max([np.linalg.norm(v[f[:, i]] - v[f[:, (i + 1) % 3]], axis=1) for i in range(3)], axis=0)
+
+    def distance_to(self, point) -> float:
+        """Exact distance from ``point`` to the surface (nearest point of any face).
+        Only faces that could beat the nearest vertex are measured exactly: a face is
+        no nearer than its nearest corner less its longest edge."""
+        from trimesh.triangles import closest_point
+        p = np.asarray(point, np.float64).reshape(3)
+        corner = np.sqrt(((self.vertices - p) ** 2).sum(1))
+        best = float(corner.min())
+        # faces with a corner within (longest edge of all) of the best: a cheap superset
+        maybe = np.flatnonzero((corner < best + self._face_longest_edge.max())[self.faces].any(1))
+        near_faces = maybe[corner[self.faces[maybe]].min(1) - self._face_longest_edge[maybe] < best]
+        if len(near_faces):
+            tris = self.vertices[self.faces[near_faces]]
+            hits = closest_point(tris, np.broadcast_to(p, (len(near_faces), 3)))
+            best = min(best, float(np.sqrt(((hits - p) ** 2).sum(1).min())))
+        return best
+
+    @cached_property
     def bounds(self):
         return self.vertices.min(0), self.vertices.max(0)
 

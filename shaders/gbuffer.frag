@@ -1,35 +1,42 @@
 #version 330 core
-// G-buffer: face id + 1 (0 = background), view depth, barycentrics, UV, one target each
-// so that a render reads back only what it needs; with LABELS also the label textures
-// of labels.glsl in targets 4-7 (saves a draw of the mesh).
+// G-buffer: face id + 1 (0 = background) and view depth, then (with BARY_UV) the
+// barycentrics and UV, one target each, so that a render reads back only what it needs;
+// with LABELS also the label maps of labels.glsl in one four-channel target (saves a
+// draw of the mesh). Without BARY_UV the labels move up to location 2: a view that
+// does not read barycentrics or UV does not write them either.
 #ifndef LABELS
 #define LABELS 0
+#endif
+#ifndef BARY_UV
+#define BARY_UV 1
 #endif
 #include "surface.glsl"
 
 layout(location = 0) out int out_face;
 layout(location = 1) out float out_depth;
+#if BARY_UV
 layout(location = 2) out vec4 out_bary;
 layout(location = 3) out vec2 out_uv;
+#endif
 #if LABELS
 #include "labels.glsl"
-layout(location = 4) out uint out_label0;
-layout(location = 5) out uint out_label1;
-layout(location = 6) out uint out_label2;
-layout(location = 7) out uint out_label3;
+#if BARY_UV
+layout(location = 4) out uvec4 out_labels;
+#else
+layout(location = 2) out uvec4 out_labels;
+#endif
 #endif
 
 void main() {
     vec3 b = surface_bary();
+    vec2 uv = g_uv * b;
     out_face = g_face + 1;
     out_depth = dot(g_depth, b);
+#if BARY_UV
     out_bary = vec4(b, 0.0);
-    out_uv = g_uv * b;
+    out_uv = uv;
+#endif
 #if LABELS
-    uvec4 l = fetch_labels(out_uv, g_face, b);
-    out_label0 = l.x;
-    out_label1 = l.y;
-    out_label2 = l.z;
-    out_label3 = l.w;
+    out_labels = fetch_labels(uv, g_face, b);
 #endif
 }

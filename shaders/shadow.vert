@@ -1,10 +1,10 @@
 #version 330 core
-// Shadow map: the depth buffer of the scene seen from the main light.
+// Depth only: shadow maps and visibility probes.
+#define POSITION_ONLY 1
+#include "face.glsl"
 uniform mat4 u_view;
 uniform mat4 u_proj;
 
-in vec3 in_position;
-
 void main() {
-    gl_Position = u_proj * u_view * vec4(in_position, 1.0);
+    gl_Position = u_proj * u_view * vec4(corner_position(), 1.0);
 }

@@ -145,6 +145,36 @@ def test_clip_planes_keep_close_and_far_cameras_precise(w):
     assert near < w and far > w + 0.4 and far / near <= 1e5 + 1
 
 
+def test_near_plane_stays_in_front_of_a_face_nearer_than_its_corners():
+    """A camera just above the middle of a big triangle, looking away along it: the
+    closest vertex, the look-at point and the bounding box are all far, the face is not.
+    ``Mesh.distance_to`` finds it, so the near plane stays in front of the face."""
+    rng = np.random.default_rng()
+    size, gap = rng.uniform(0.5, 2.0), rng.uniform(1e-3, 1e-2)
+    # a second face reaches above the camera, so the bounding box gives no bound either
+    tri = gs.Mesh([[0, 0, 0], [size, 0, 0], [0, size, 0], [0, 0, size]], [[0, 1, 2], [0, 1, 3]],
+                  require_texture=False)
+    eye = np.array([size / 3, size / 3, gap])
+    cam = gs.Camera.look_at(eye, eye + (5.0, 5.0, -0.01))
+    assert math.isclose(tri.distance_to(eye), gap, rel_tol=1e-9)
+    near, far = cam.clip_planes(*tri.bounds, distance=tri.distance_to(eye))
+    assert near < gap < far
+    unbounded, _ = cam.clip_planes(*tri.bounds, vertices=tri.vertices)
+    assert unbounded > gap  # what the vertices alone would give
+
+
+def test_distance_to_matches_every_face_measured():
+    trimesh = pytest.importorskip("trimesh")
+    rng = np.random.default_rng()
+    tm = trimesh.creation.icosphere(2, radius=rng.uniform(0.2, 1.0))
+    tm.vertices += rng.normal(scale=0.02, size=tm.vertices.shape)
+    mesh = gs.Mesh(tm.vertices, tm.faces, require_texture=False)
+    for p in rng.normal(size=(20, 3)) * rng.uniform(0.1, 2.0, size=(20, 1)):
+        hits = trimesh.triangles.closest_point(mesh.vertices[mesh.faces], np.tile(p, (len(mesh.faces), 1)))
+        assert math.isclose(mesh.distance_to(p), np.linalg.norm(hits - p, axis=1).min(), rel_tol=1e-9,
+                            abs_tol=1e-12)
+
+
 def test_bad_camera_inputs():
     with pytest.raises(ValueError, match="non-zero"):
         gs.Camera.look_at((0, 0, 0), (0, 0, 0))

@@ -422,3 +422,23 @@ def test_uv_space_window_equals_the_crop_of_the_full_raster(renderer, rng):
     np.testing.assert_array_equal(renderer.render_uv_space(mesh, 300, 200)["face_id"], full["face_id"])
     with pytest.raises(ValueError, match="empty"):
         renderer.render_uv_space(mesh, 300, 200, box=(10, 10, 10, 20))
+
+
+@pytest.mark.parametrize("gap", [0.002, 1.0, 20.0])
+def test_depth_only_draw_matches_the_gbuffer_depth(renderer, rng, gap):
+    """``Renderer.depth`` (z-buffer, linearised) against the G-buffer's exact depth,
+    from almost on the surface to far away (``gap``: camera to sphere surface)."""
+    mesh = sphere(rng)  # radius 0.3
+    d = rng.normal(size=3)
+    eye = d / np.linalg.norm(d) * (0.3 + gap * (1 + 0.1 * rng.random()))
+    fov = rng.uniform(20, 60) if gap < 10 else rng.uniform(0.8, 1.5)
+    cam = gs.Camera.look_at(eye, rng.normal(scale=0.01, size=3), width=renderer.width,
+                            height=renderer.height, fov_deg=fov)
+    exact = renderer.render(mesh, cam, passes=("gbuffer",))["depth"]
+    z = renderer.depth(mesh, cam)
+    assert z.shape == exact.shape and z.dtype == np.float32
+    hit = exact > 0
+    assert hit.sum() > 50 and np.mean(hit == (z > 0)) >= 0.998
+    both = hit & (z > 0)
+    np.testing.assert_allclose(z[both], exact[both], rtol=1e-3)
+    assert (z[z <= 0] == -1).all()

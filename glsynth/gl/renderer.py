@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 
 PASSES = ("gbuffer", "rgb", "labels")
 GBUFFER_LAYERS = ("face_id", "depth", "bary", "uv")
-MAX_LABEL_TARGETS = 4
+MAX_LABEL_MAPS = 4  # one four-channel uint16 target
 MAX_SUPERSAMPLE = 8
 
 
@@ -50,24 +50,26 @@ def _label_ids(arr: np.ndarray, what: str) -> np.ndarray:
 
 
 class _MeshOnGPU:
-    """Unindexed corner buffer (3 corners per face, in face order) of one mesh, with a
-    vertex array per program made on first use."""
+    """Unindexed corner buffer of one mesh (3 corners per face, in face order, each
+    carrying its whole face: see shaders/face.glsl), with a vertex array per program
+    made on first use."""
 
-    _LAYOUT = {"in_position": "3f", "in_normal": "3f", "in_uv": "2f"}
+    _LAYOUT = {**{f"in_p{k}": "3f" for k in range(3)}, **{f"in_n{k}": "3f" for k in range(3)},
+               **{f"in_uv{k}": "2f" for k in range(3)}}
 
     def __init__(self, ctx, mesh: Mesh):
-        corners = mesh.faces.reshape(-1)
-        pos = mesh.vertices[corners].astype(np.float32)
-        nrm = mesh.vertex_normals[corners].astype(np.float32)
-        uv = (mesh.uvs[mesh.face_uvs.reshape(-1)] if mesh.uvs is not None
-              else np.zeros((len(corners), 2))).astype(np.float32)
-        data = np.concatenate([pos, nrm, uv], axis=1)
+        n = len(mesh.faces)
+        uv = (mesh.uvs[mesh.face_uvs] if mesh.uvs is not None else np.zeros((n, 3, 2)))
+        face = np.concatenate([mesh.vertices[mesh.faces].reshape(n, 9),
+                               mesh.vertex_normals[mesh.faces].reshape(n, 9),
+                               uv.reshape(n, 6)], axis=1).astype(np.float32)
         self.ctx = ctx
         self.closed_orientation = mesh.closed_orientation
-        self.vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
-        self.count = len(corners)
+        self.vbo = ctx.buffer(np.repeat(face, 3, axis=0).tobytes())
+        self.count = 3 * n
         self.vaos = {}
         self._corner_labels = {}  # id(vertex label array) -> (array, texture)
+        self._clip_planes = {}    # (eye, target) -> (near, far)
         self.texture = None
         if mesh.texture is not None:
             h, w = mesh.texture.shape[:2]
@@ -86,6 +88,21 @@ class _MeshOnGPU:
             fmt = " ".join(f if a in attrs else f.replace("f", "x4") for a, f in self._LAYOUT.items())
             vao = self.vaos[name] = self.ctx.vertex_array(prog, [(self.vbo, fmt, *attrs)])
         return vao
+
+    def clip_planes(self, mesh: Mesh, camera: Camera) -> tuple:
+        """``camera``'s near/far planes for this mesh (``Camera.clip_planes``), kept for
+        the last few eye/target pairs: a view's passes, crops and shadow map share them
+        (each measures the distance from the eye to the surface)."""
+        if camera.near is not None and camera.far is not None:
+            return camera.near, camera.far
+        key = (camera.eye, camera.target)
+        planes = self._clip_planes.get(key)
+        if planes is None:
+            if len(self._clip_planes) >= 8:
+                self._clip_planes.pop(next(iter(self._clip_planes)))
+            planes = self._clip_planes[key] = camera.clip_planes(
+                *mesh.bounds, distance=mesh.distance_to(camera.eye))
+        return planes
 
     def corner_labels(self, vertex_labels: np.ndarray, mesh: Mesh):
         """Texture of ``vertex_labels`` at each face corner (index face * 3 + corner,
@@ -135,15 +152,13 @@ class Renderer:
 
     def _setup(self):
         self.ctx.depth_clamp_range = (0.0, 1.0)  # enables GL_DEPTH_CLAMP (see Camera.clip_planes)
-        vert, geom = shader_source("mesh.vert"), shader_source("mesh.geom")
+        vert = shader_source("mesh.vert")
         self.programs = {
-            name: self.ctx.program(vertex_shader=vert, geometry_shader=geom, fragment_shader=frag)
+            name: self.ctx.program(vertex_shader=vert, fragment_shader=frag)
             for name, frag in (("gbuffer", shader_source("gbuffer.frag")),
-                               ("gbuffer+labels", with_defines(shader_source("gbuffer.frag"), LABELS=1)),
                                ("labels", shader_source("labels.frag")))}
         self.programs["uvspace"] = self.ctx.program(
-            vertex_shader=shader_source("uvspace.vert"), geometry_shader=geom,
-            fragment_shader=shader_source("gbuffer.frag"))
+            vertex_shader=shader_source("uvspace.vert"), fragment_shader=shader_source("gbuffer.frag"))
         self.programs["shadow"] = self.ctx.program(vertex_shader=shader_source("shadow.vert"),
                                                    fragment_shader=shader_source("shadow.frag"))
         self._downsample = self.ctx.program(vertex_shader=shader_source("fullscreen.vert"),
@@ -152,9 +167,28 @@ class Renderer:
         self._meshes = {}      # id(mesh) -> (weakref(mesh), _MeshOnGPU)
         self._label_tex = {}   # id(array) -> (array, texture)
         self._fbos = {}
-        for i in range(MAX_LABEL_TARGETS):
-            self.programs["labels"][f"u_labels{i}"] = i + 2
-            self.programs["gbuffer+labels"][f"u_labels{i}"] = i + 2
+        self._label_samplers(self.programs["labels"])
+
+    @staticmethod
+    def _label_samplers(prog):
+        for i in range(MAX_LABEL_MAPS):  # units 0, 1: colour, shadow map
+            prog[f"u_labels{i}"] = i + 2
+
+    @staticmethod
+    def _gbuffer_kind(labels: bool, bary_uv: bool) -> str:
+        """Program and framebuffer name of a G-buffer draw: with the label maps or not,
+        with the barycentric and UV targets or without (``-lean``)."""
+        return f"gbuffer{'+labels' if labels else ''}{'' if bary_uv else '-lean'}"
+
+    def _gbuffer_program(self, kind: str):
+        if kind not in self.programs:
+            frag = with_defines(shader_source("gbuffer.frag"), LABELS=int("+labels" in kind),
+                                BARY_UV=int(not kind.endswith("-lean")))
+            self.programs[kind] = self.ctx.program(vertex_shader=shader_source("mesh.vert"),
+                                                   fragment_shader=frag)
+            if "+labels" in kind:
+                self._label_samplers(self.programs[kind])
+        return self.programs[kind]
 
     def _phong(self, n_lights: int, shadows: bool) -> str:
         """Name of the shading program for this light count and shadow setting, compiled
@@ -162,8 +196,7 @@ class Renderer:
         name = f"rgb{n_lights}{'s' if shadows else ''}"
         if name not in self.programs:
             frag = with_defines(shader_source("phong.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows)
-            prog = self.ctx.program(vertex_shader=shader_source("mesh.vert"),
-                                    geometry_shader=shader_source("mesh.geom"), fragment_shader=frag)
+            prog = self.ctx.program(vertex_shader=shader_source("mesh.vert"), fragment_shader=frag)
             if shadows:
                 prog["u_shadow_map"] = 1
             self.programs[name] = prog
@@ -236,15 +269,18 @@ class Renderer:
             self._release_fbo(self._fbos.pop(next(iter(self._fbos))))
         ctx = self.ctx
         depth = ctx.depth_renderbuffer((w, h))
-        if kind in ("gbuffer", "gbuffer+labels"):  # face id, depth, barycentrics, UV
-            colors = [ctx.renderbuffer((w, h), 1, dtype="i4"), ctx.renderbuffer((w, h), 1, dtype="f4"),
-                      ctx.renderbuffer((w, h), 4, dtype="f4"), ctx.renderbuffer((w, h), 2, dtype="f4")]
-            if kind == "gbuffer+labels":
-                colors += [ctx.renderbuffer((w, h), 1, dtype="u2") for _ in range(MAX_LABEL_TARGETS)]
+        if kind.startswith("gbuffer"):  # face id, depth, [barycentrics, UV], [labels]
+            colors = [ctx.renderbuffer((w, h), 1, dtype="i4"), ctx.renderbuffer((w, h), 1, dtype="f4")]
+            if not kind.endswith("-lean"):
+                colors += [ctx.renderbuffer((w, h), 4, dtype="f4"), ctx.renderbuffer((w, h), 2, dtype="f4")]
+            if "+labels" in kind:
+                colors.append(ctx.renderbuffer((w, h), 4, dtype="u2"))
         elif kind == "labels":
-            colors = [ctx.renderbuffer((w, h), 1, dtype="u2") for _ in range(MAX_LABEL_TARGETS)]
+            colors = [ctx.renderbuffer((w, h), 4, dtype="u2")]
         elif kind == "rgb":
             colors = [ctx.texture((w, h), 4, dtype="f4")]
+        elif kind == "depth":  # depth only, read back (see ``depth``)
+            colors = []
         elif kind == "shadow":  # depth only, sampled with comparison + bilinear filtering
             colors, depth = [], ctx.depth_texture((w, h))
             depth.compare_func = "<="
@@ -310,7 +346,7 @@ class Renderer:
         want = None if buffers is None else set(buffers)
         size = (camera.width, camera.height)  # framebuffers are cached per size
         gpu = self._gpu_mesh(mesh)
-        mats = self._matrices(mesh, camera)
+        mats = self._matrices(gpu, mesh, camera)
         out = {}
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
@@ -335,11 +371,8 @@ class Renderer:
         return out
 
     @staticmethod
-    def _matrices(mesh, camera):
-        if camera.near is not None and camera.far is not None:
-            near, far = camera.near, camera.far
-        else:
-            near, far = camera.clip_planes(*mesh.bounds, vertices=mesh.vertices)
+    def _matrices(gpu, mesh, camera):
+        near, far = gpu.clip_planes(mesh, camera)
         return {"u_view": camera.view_matrix().T.astype("f4").tobytes(),
                 "u_proj": camera.projection_matrix(near, far).T.astype("f4").tobytes()}
 
@@ -363,11 +396,11 @@ class Renderer:
         target = np.asarray(camera.target)
         n = self.SHADOW_SIZE
         light_cam = Camera.look_at(light.position, target, fov_deg=100.0, width=n, height=n)
-        mats = self._matrices(mesh, light_cam)
+        mats = self._matrices(gpu, mesh, light_cam)
         fbo = self._fbo("shadow", n, n)
         self._draw(gpu, "shadow", fbo, mats)
         fbo.depth_attachment.use(1)
-        near, far = light_cam.clip_planes(*mesh.bounds, vertices=mesh.vertices)
+        near, far = gpu.clip_planes(mesh, light_cam)
         viewproj = light_cam.projection_matrix(near, far) @ light_cam.view_matrix()
         prog["u_light_viewproj"].write(viewproj.T.astype("f4").tobytes())
         prog["u_shadow_texel"].value = 2 * np.tan(np.radians(light_cam.fov_deg) / 2) / n
@@ -387,16 +420,27 @@ class Renderer:
         gpu.texture.use(0)
         prog["u_texture"].value = 0
 
-    def _read(self, fbo, attachment, components, dtype, np_dtype, window=None):
-        """One attachment as numpy, row 0 at the top; ``window`` = GL (x, y, w, h)."""
+    def _read(self, fbo, attachment, components, dtype, np_dtype, window=None, flip=True):
+        """One attachment as numpy, row 0 at the top (``flip=False``: as GL stores it,
+        row 0 at the bottom); ``window`` = GL (x, y, w, h)."""
         w, h = fbo.size if window is None else window[2:]
         buf = np.empty((h, w, components) if components > 1 else (h, w), dtype=np_dtype)
         fbo.read_into(buf, viewport=window, components=components, attachment=attachment,
                       dtype=dtype, alignment=1)
-        return np.ascontiguousarray(buf[::-1])
+        return np.ascontiguousarray(buf[::-1]) if flip else buf
+
+    def _read_labels(self, fbo, attachment, names, want=None) -> dict:
+        """The label maps of a four-channel label target, one contiguous array each."""
+        names = [(i, n) for i, n in enumerate(names) if want is None or n in want]
+        if not names:
+            return {}
+        raw = self._read(fbo, attachment, 4, "u2", np.uint16, flip=False)
+        return {name: np.ascontiguousarray(raw[::-1, :, i]) for i, name in names}
 
     def _render_gbuffer(self, gpu, mats, size, labels=None, want=None):
-        kind = "gbuffer" if labels is None else "gbuffer+labels"
+        bary_uv = want is None or bool({"bary", "uv"} & want)
+        kind = self._gbuffer_kind(labels is not None, bary_uv)
+        self._gbuffer_program(kind)
         fbo = self._fbo(kind, *size)
         # moderngl clears every attachment with the same value, so the shader writes
         # face id + 1 over a cleared 0; background depth is set to -1 from the face ids.
@@ -411,9 +455,8 @@ class Renderer:
             out["bary"] = np.ascontiguousarray(self._read(fbo, 2, 4, "f4", np.float32)[..., :3])
         if want is None or "uv" in want:
             out["uv"] = self._read(fbo, 3, 2, "f4", np.float32)
-        for i, name in enumerate(labels or ()):
-            if want is None or name in want:
-                out[name] = self._read(fbo, 4 + i, 1, "u2", np.uint16)
+        if labels:
+            out.update(self._read_labels(fbo, 4 if bary_uv else 2, labels, want))
         return out
 
     def _render_rgb(self, gpu, mesh, mats, camera, lights, material, supersample, size, shadows,
@@ -454,26 +497,23 @@ class Renderer:
             raise ValueError("pass either label_texture or label_textures, not both")
         items = list((label_textures or {}).items())
         per_vertex = list((vertex_labels or {}).items())
-        if not 1 <= len(items) + len(per_vertex) <= MAX_LABEL_TARGETS:
-            raise ValueError(f"the labels pass takes 1 to {MAX_LABEL_TARGETS} label maps "
+        if not 1 <= len(items) + len(per_vertex) <= MAX_LABEL_MAPS:
+            raise ValueError(f"the labels pass takes 1 to {MAX_LABEL_MAPS} label maps "
                              "(label_texture=, label_textures= or vertex_labels=), got "
                              f"{len(items) + len(per_vertex)}")
         in_use = {id(arr) for _, arr in items}
         textures = [self._label_texture(arr, in_use) for _, arr in items]
         textures += [gpu.corner_labels(np.asarray(arr), mesh) for _, arr in per_vertex]
-        for i in range(MAX_LABEL_TARGETS):  # unused samplers still need a valid texture
+        for i in range(MAX_LABEL_MAPS):  # unused samplers still need a valid texture
             textures[min(i, len(textures) - 1)].use(i + 2)  # units 0, 1: colour, shadow map
         per_corner = [0] * len(items) + [1] * len(per_vertex)
-        per_corner += [0] * (MAX_LABEL_TARGETS - len(per_corner))
-        for name in ("labels", "gbuffer+labels"):
-            self.programs[name]["u_count"].value = len(textures)
-            self.programs[name]["u_per_corner"].value = tuple(per_corner)
+        self._label_layout = (len(textures), tuple(per_corner + [0] * (MAX_LABEL_MAPS - len(per_corner))))
         return [name for name, _ in items + per_vertex]
 
     def _render_labels(self, gpu, mats, names, size):
         fbo = self._fbo("labels", *size)
         self._draw(gpu, "labels", fbo, mats)
-        return {name: self._read(fbo, i, 1, "u2", np.uint16) for i, name in enumerate(names)}
+        return self._read_labels(fbo, 0, names)
 
     def _draw(self, gpu, prog_name, fbo, mats, clear=(0.0, 0.0, 0.0, 0.0), cull=True):
         """Draw the mesh with a program into ``fbo``. ``cull``: skip the faces turned
@@ -485,6 +525,8 @@ class Renderer:
         prog = self.programs[prog_name]
         for k, v in mats.items():
             prog[k].write(v)
+        if "u_count" in prog:  # a label program: the maps _bind_labels bound
+            prog["u_count"].value, prog["u_per_corner"].value = self._label_layout
         fbo.use()
         fbo.viewport = (0, 0, *fbo.size)
         fbo.clear(*clear, depth=1.0)
@@ -495,6 +537,24 @@ class Renderer:
             self.ctx.disable(moderngl.CULL_FACE)
         gpu.vao(prog_name, prog).render(moderngl.TRIANGLES, vertices=gpu.count)
         self.ctx.disable(moderngl.CULL_FACE)  # full-screen passes (resolve) draw both sides
+
+    def depth(self, mesh: Mesh, camera: Camera) -> np.ndarray:
+        """View-space depth (float32 H x W, row 0 at the top, -1 on background) from the
+        z-buffer of a depth-only draw: positions only, no colour targets, so about a
+        third of the G-buffer's cost, for visibility probes. Relative error about
+        ``depth / near * 2**-24`` (the G-buffer's depth is the exact interpolated z)."""
+        with self.ctx:
+            gpu = self._gpu_mesh(mesh)
+            near, far = gpu.clip_planes(mesh, camera)
+            fbo = self._fbo("depth", camera.width, camera.height)
+            self.ctx.enable(moderngl.DEPTH_TEST)
+            self._draw(gpu, "shadow", fbo, self._matrices(gpu, mesh, camera))
+            z = np.empty((camera.height, camera.width), np.float32)
+            fbo.read_into(z, attachment=-1, dtype="f4", alignment=1)
+        z = np.ascontiguousarray(z[::-1])
+        ndc = 2.0 * z - 1.0  # invert the projection's depth mapping (window depth in [0, 1])
+        view = (2.0 * near * far / (far + near - ndc * (far - near))).astype(np.float32)
+        return np.where(z < 1.0, view, np.float32(-1.0))
 
     def render_uv_space(self, mesh: Mesh, width: int, height: int, box=None) -> dict:
         """Rasterise ``mesh`` in texture space at ``width`` x ``height`` texels.
@@ -565,7 +625,7 @@ class Renderer:
             self.ctx.enable(moderngl.DEPTH_TEST)
             self.ctx.disable(moderngl.BLEND)
             fbo = self._fbo("rgb" if dtype == "f4" else "display", camera.width, camera.height)
-            self._draw(gpu, prog, fbo, self._matrices(mesh, camera))
+            self._draw(gpu, prog, fbo, self._matrices(gpu, mesh, camera))
             return fbo
 
 

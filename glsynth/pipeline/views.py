@@ -100,7 +100,7 @@ def ambient_tint_from(background, strength) -> tuple:
 def _sees_point(renderer, mesh, cam, point) -> bool:
     """True when the first surface along the camera's central ray is ``point``."""
     crop = cam.crop(cam.width // 2 - 1, cam.height // 2 - 1, 2, 2)
-    return _centre_is(renderer.render(mesh, crop, passes=("gbuffer",))["depth"], cam, point)
+    return _centre_is(renderer.depth(mesh, crop), cam, point)
 
 
 def _centre_is(depth, cam, point) -> bool:
