@@ -106,6 +106,22 @@ def test_defocus_sharp_at_focus_blurred_away_from_it(rng):
     assert np.allclose(coc, [0.0, 1.5, 2.4, 3.0])
 
 
+def test_layered_defocus_equals_blurring_whole_images(rng):
+    """Each blur layer is filtered only in the band of rows that use it; the result must
+    equal blurring the whole image per layer and mixing by the radius (the definition)."""
+    h, w = int(rng.integers(40, 90)), int(rng.integers(40, 90))
+    lin = rng.random((h, w, 3)).astype(np.float32)
+    depth = np.where(rng.random((h, w)) < 0.2, -1.0,
+                     1.0 + np.cumsum(rng.normal(scale=0.05, size=(h, w)), 0)).astype(np.float32)
+    kappa, focus, max_coc = rng.uniform(1, 6), float(rng.uniform(0.8, 1.5)), 12.0
+    r = photo.coc_map(depth, kappa, focus, max_coc) / 2
+    expect = np.zeros_like(lin)
+    for k in range(int(np.ceil(r.max())) + 1):
+        layer = lin if k == 0 else cv2.filter2D(lin, -1, photo.disc_kernel(k), borderType=cv2.BORDER_REFLECT)
+        expect += layer * np.clip(1 - np.abs(r - k), 0, 1)[..., None]
+    np.testing.assert_allclose(photo.defocus(lin, depth, kappa, focus, max_coc), expect, atol=2e-6)
+
+
 @pytest.mark.parametrize("shot,read", [(0.01, 0.0), (0.0, 0.03), (0.004, 0.01)])
 def test_noise_statistics_match_the_model(shot, read):
     x = float(photo.SRGB_TO_LINEAR[140])                # a flat mid-grey region

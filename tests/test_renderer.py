@@ -392,13 +392,14 @@ def test_supersampled_edges_composite_without_a_dark_fringe(renderer, rng):
     from glsynth.pipeline.views import composite
     mesh = sphere(rng).copy_with(texture=np.full((8, 8, 3), 255, np.uint8))
     cam = gs.Camera.look_at((0, 0, 1.0), (0, 0, 0), width=renderer.width, height=renderer.height)
-    out = renderer.render(mesh, cam, passes=("rgb",), supersample=3,
-                          lights=[PointLight((0, 0, 1.0), ambient=1.0, diffuse=0.0, specular=0.0)])
-    edge = (out["alpha"] > 0) & (out["alpha"] < 1)
-    assert edge.sum() > 20
-    np.testing.assert_allclose(out["rgb"][edge], np.repeat(out["alpha"][edge, None], 3, 1), atol=1e-6)
     white = np.full((renderer.height, renderer.width, 3), 255, np.uint8)
-    assert (composite(out["rgb"], out["alpha"], white, 0) == 255).all()
+    for aa in ({"supersample": 3}, {"multisample": 4}):
+        out = renderer.render(mesh, cam, passes=("rgb",), **aa,
+                              lights=[PointLight((0, 0, 1.0), ambient=1.0, diffuse=0.0, specular=0.0)])
+        edge = (out["alpha"] > 0) & (out["alpha"] < 1)
+        assert edge.sum() > 20
+        np.testing.assert_allclose(out["rgb"][edge], np.repeat(out["alpha"][edge, None], 3, 1), atol=1e-6)
+        assert (composite(out["rgb"], out["alpha"], white, 0) == 255).all()
 
 
 def test_uv_space_window_equals_the_crop_of_the_full_raster(renderer, rng):

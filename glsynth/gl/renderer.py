@@ -288,9 +288,11 @@ class Renderer:
             depth.repeat_x = depth.repeat_y = False
         elif kind.startswith("rgb-msaa"):
             samples = int(kind[len("rgb-msaa"):])
-            # half floats: 0.06/255 at most off float32 before the resolve averages the
-            # samples (into float32), and ~2 ms less memory traffic per 512^2 view
-            colors = [ctx.renderbuffer((w, h), 4, dtype="f2", samples=samples)]
+            # 8-bit samples: 0.5/255 at most off float32 before the resolve averages them
+            # (into float32), below the 8-bit image's own rounding; llvmpipe shades into
+            # unorm8 on its fast path (512^2 body view with shadows: ~4 core-ms less
+            # than half floats)
+            colors = [ctx.renderbuffer((w, h), 4, dtype="f1", samples=samples)]
             depth = ctx.depth_renderbuffer((w, h), samples=samples)
         elif kind == "display":  # 8-bit, for showing on screen (previewer)
             colors = [ctx.renderbuffer((w, h), 4, dtype="f1")]

@@ -58,12 +58,20 @@ del _S, _L
 
 
 def srgb_to_linear(img_u8: np.ndarray) -> np.ndarray:
-    return SRGB_TO_LINEAR[img_u8]
+    """float32 linear values of an 8-bit sRGB image (OpenCV's table look-up: a third of
+    numpy indexing's time)."""
+    img = np.ascontiguousarray(img_u8)
+    return cv2.LUT(img, SRGB_TO_LINEAR.reshape(256, 1)).reshape(img.shape)
 
 
-def linear_to_srgb8(lin: np.ndarray) -> np.ndarray:
-    idx = np.clip(lin, 0, 1) * _LIN_STEPS + 0.5
-    return LINEAR_TO_SRGB8[idx.astype(np.uint16)]
+def linear_to_srgb8(lin: np.ndarray, gains=None) -> np.ndarray:
+    """8-bit sRGB of linear values (clipped to [0, 1]; ``gains``: per-channel factors
+    applied first, e.g. white balance)."""
+    scale = np.float32(_LIN_STEPS) * (np.float32(1) if gains is None else np.asarray(gains, np.float32))
+    idx = np.array(lin, np.float32, ndmin=1) * scale
+    np.clip(idx, 0, _LIN_STEPS, out=idx)
+    idx += np.float32(0.5)
+    return LINEAR_TO_SRGB8[idx.astype(np.uint16)].reshape(np.shape(lin))
 
 
 # ---- sampling ------------------------------------------------------------------------
@@ -121,10 +129,14 @@ def sample_params(pc, rng, focus_distance: float, focal_px: float = 1.0) -> dict
 def coc_map(depth, kappa, focus, max_coc):
     """Circle-of-confusion diameter (pixels) per pixel; depth <= 0 (background) is at
     infinity."""
-    d = np.asarray(depth, np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        coc = np.where(d > 0, kappa * np.abs(d - focus) / (np.maximum(d, 1e-12) * focus), kappa / focus)
-    return np.minimum(coc, max_coc).astype(np.float32)
+    d = np.asarray(depth, np.float32)
+    body = d > 0
+    d_safe = np.where(body, d, np.float32(1))
+    coc = np.abs(d_safe - np.float32(focus))
+    coc *= np.float32(kappa / focus)
+    coc /= d_safe
+    coc[~body] = kappa / focus
+    return np.minimum(coc, np.float32(max_coc), out=coc)
 
 
 def disc_kernel(radius: float, samples: int = 4) -> np.ndarray:
@@ -139,14 +151,27 @@ def disc_kernel(radius: float, samples: int = 4) -> np.ndarray:
 
 
 def defocus(lin, depth, kappa, focus, max_coc):
-    r = coc_map(depth, kappa, focus, max_coc) / 2          # radius in pixels
+    r = coc_map(depth, kappa, focus, max_coc)
+    r *= np.float32(0.5)                                   # radius in pixels
     out = np.zeros_like(lin)
+    wgt = np.empty_like(r)
     for k in range(int(math.ceil(float(r.max()))) + 1):
-        wgt = np.clip(1 - np.abs(r - k), 0, 1)
-        if not wgt.any():
+        # weight of layer k: 1 - |r - k| clipped to [0, 1], only in the rows it touches
+        rows = np.flatnonzero(((r > k - 1) & (r < k + 1)).any(1))
+        if not len(rows):
             continue
-        layer = lin if k == 0 else cv2.filter2D(lin, -1, disc_kernel(k), borderType=cv2.BORDER_REFLECT)
-        out += layer * wgt[..., None]
+        y0, y1 = int(rows[0]), int(rows[-1]) + 1
+        w = np.subtract(r[y0:y1], np.float32(k), out=wgt[y0:y1])
+        np.abs(w, out=w)
+        np.subtract(np.float32(1), w, out=w)
+        np.maximum(w, 0, out=w)
+        if k == 0:
+            layer = lin[y0:y1]
+        else:  # blur a band k rows taller each side, so the kept rows see true neighbours
+            b0, b1 = max(y0 - k, 0), min(y1 + k, lin.shape[0])
+            layer = cv2.filter2D(lin[b0:b1], -1, disc_kernel(k), borderType=cv2.BORDER_REFLECT)
+            layer = layer[y0 - b0:y1 - b0]
+        cv2.accumulateProduct(layer, cv2.merge([w, w, w]), out[y0:y1])
     return out
 
 
@@ -191,19 +216,22 @@ def chromatic_aberration(lin, shift_px):
     h, w = lin.shape[:2]
     dx, dy, _, rc = _radius_grid(h, w)
     cx, cy = (w - 1) / 2, (h - 1) / 2
-    out = lin.copy()
+    channels = list(cv2.split(lin))
     for c, sign in ((0, 1.0), (2, -1.0)):
         s = 1 + sign * shift_px / rc           # channel magnified by s: sample at p / s
         mx, my = cx + dx / s, cy + dy / s
-        out[..., c] = cv2.remap(np.ascontiguousarray(lin[..., c]), mx, my, cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_REFLECT)
-    return out
+        channels[c] = cv2.remap(channels[c], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return cv2.merge(channels)
+
+
+def vignetting_gain(shape, strength):
+    """Per-pixel gain ``1 - strength * rho^2`` (H x W float32)."""
+    rho2 = _radius_grid(*shape[:2])[2]
+    return 1 - np.float32(strength) * rho2
 
 
 def vignetting(lin, strength):
-    rho2 = _radius_grid(*lin.shape[:2])[2]
-    gain = 1 - np.float32(strength) * rho2
-    return lin * gain[..., None]
+    return lin * vignetting_gain(lin.shape, strength)[..., None]
 
 
 def add_noise(lin, shot, read, seed):
@@ -247,16 +275,20 @@ def apply(image: np.ndarray, params: dict, depth: np.ndarray | None = None) -> n
             lin = motion_blur(lin, fx["motion_blur"]["length_px"], fx["motion_blur"]["angle_deg"])
         if "chromatic_aberration" in fx:
             lin = chromatic_aberration(lin, fx["chromatic_aberration"]["shift_px"])
+        # vignetting and exposure are both gains before the sensor: one multiply
+        exposure = np.float32(2 ** fx["exposure"]["ev"]) if "exposure" in fx else None
         if "vignetting" in fx:
-            lin = vignetting(lin, fx["vignetting"]["strength"])
-        if "exposure" in fx:
-            lin = lin * np.float32(2 ** fx["exposure"]["ev"])
+            gain = vignetting_gain(lin.shape, fx["vignetting"]["strength"])
+            if exposure is not None:
+                gain *= exposure
+            lin = lin * gain[..., None]
+        elif exposure is not None:
+            lin = lin * exposure
         if "noise" in fx:
             p = fx["noise"]
             lin = add_noise(lin, p["shot"], p["read"], p["seed"])
-        if "white_balance" in fx:
-            lin = lin * np.asarray(fx["white_balance"]["gains"], np.float32)
-        img = linear_to_srgb8(lin)
+        # white balance: gains after the sensor, applied by the sRGB encoding
+        img = linear_to_srgb8(lin, fx["white_balance"]["gains"] if "white_balance" in fx else None)
     if "jpeg" in fx:
         img = jpeg(img, fx["jpeg"]["quality"])
     return img
