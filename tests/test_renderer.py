@@ -443,3 +443,20 @@ def test_depth_only_draw_matches_the_gbuffer_depth(renderer, rng, gap):
     both = hit & (z > 0)
     np.testing.assert_allclose(z[both], exact[both], rtol=1e-3)
     assert (z[z <= 0] == -1).all()
+
+
+def test_mesh_staged_in_another_thread_renders_the_same(renderer, rng):
+    import threading
+    mesh = sphere(rng)
+    staged = mesh.copy_with()
+    worker = threading.Thread(target=renderer.stage, args=(staged,))
+    worker.start()
+    worker.join()
+    assert id(staged) in renderer._staged
+    cam = gs.Camera.look_at(rng.normal(size=3) * 0.2 + (0, 0, 1.2), (0, 0, 0),
+                            width=renderer.width, height=renderer.height)
+    a = renderer.render(mesh, cam, passes=("gbuffer", "rgb"))
+    b = renderer.render(staged, cam, passes=("gbuffer", "rgb"))
+    assert id(staged) not in renderer._staged  # used by the upload, then dropped
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])

@@ -57,26 +57,36 @@ class _MeshOnGPU:
     _LAYOUT = {**{f"in_p{k}": "3f" for k in range(3)}, **{f"in_n{k}": "3f" for k in range(3)},
                **{f"in_uv{k}": "2f" for k in range(3)}}
 
-    def __init__(self, ctx, mesh: Mesh):
+    @staticmethod
+    def staged(mesh: Mesh) -> dict:
+        """The CPU side of an upload (no GL, so any thread may make it): the corner
+        buffer, the texture as half floats, and the mesh's cached properties that
+        rendering reads (orientation, bounds, per-face edge lengths)."""
         n = len(mesh.faces)
         uv = (mesh.uvs[mesh.face_uvs] if mesh.uvs is not None else np.zeros((n, 3, 2)))
         face = np.concatenate([mesh.vertices[mesh.faces].reshape(n, 9),
                                mesh.vertex_normals[mesh.faces].reshape(n, 9),
                                uv.reshape(n, 6)], axis=1).astype(np.float32)
+        mesh.distance_to(mesh.vertices[0])  # fills the mesh's cached per-face edge lengths
+        _ = mesh.bounds, mesh.closed_orientation
+        # Half floats: llvmpipe filters 8-bit textures with 8-bit weights (up to ~2/255
+        # off the torch path); float textures are filtered in float.
+        texels = None if mesh.texture is None else _half_float_texels(mesh.texture)
+        return {"corners": np.repeat(face, 3, axis=0).tobytes(), "count": 3 * n, "texels": texels}
+
+    def __init__(self, ctx, mesh: Mesh, staged=None):
+        staged = staged or self.staged(mesh)
         self.ctx = ctx
         self.closed_orientation = mesh.closed_orientation
-        self.vbo = ctx.buffer(np.repeat(face, 3, axis=0).tobytes())
-        self.count = 3 * n
+        self.vbo = ctx.buffer(staged["corners"])
+        self.count = staged["count"]
         self.vaos = {}
         self._corner_labels = {}  # id(vertex label array) -> (array, texture)
         self._clip_planes = {}    # (eye, target) -> (near, far)
         self.texture = None
         if mesh.texture is not None:
             h, w = mesh.texture.shape[:2]
-            # Half floats: llvmpipe filters 8-bit textures with 8-bit weights (up to ~2/255
-            # off the torch path); float textures are filtered in float.
-            self.texture = ctx.texture((w, h), 3, _half_float_texels(mesh.texture),
-                                       dtype="f2", alignment=2)
+            self.texture = ctx.texture((w, h), 3, staged["texels"], dtype="f2", alignment=2)
             self.texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self.texture.repeat_x = self.texture.repeat_y = False  # clamp, like grid_sample 'border'
 
@@ -165,6 +175,7 @@ class Renderer:
                                             fragment_shader=shader_source("downsample.frag"))
         self._empty_vao = self.ctx.vertex_array(self._downsample, [])
         self._meshes = {}      # id(mesh) -> (weakref(mesh), _MeshOnGPU)
+        self._staged = {}      # id(mesh) -> (weakref(mesh), _MeshOnGPU.staged(mesh))
         self._label_tex = {}   # id(array) -> (array, texture)
         self._fbos = {}
         self._label_samplers(self.programs["labels"])
@@ -207,13 +218,23 @@ class Renderer:
         return dict(self.ctx.info)
 
     # ---- resources --------------------------------------------------------------
+    def stage(self, mesh: Mesh):
+        """Prepare ``mesh``'s upload on the CPU now, from any thread (the GL upload at
+        its first render then only copies): a pipeline loading the next body in a
+        helper thread takes ~0.1 s of its first render off the render thread."""
+        self._staged[id(mesh)] = (weakref.ref(mesh), _MeshOnGPU.staged(mesh))
+
     def _gpu_mesh(self, mesh: Mesh) -> _MeshOnGPU:
         entry = self._meshes.get(id(mesh))
         if entry is not None and entry[0]() is mesh:
             return entry[1]
         if entry is not None:
             entry[1].release()
-        gpu = _MeshOnGPU(self.ctx, mesh)
+        staged = self._staged.pop(id(mesh), None)
+        staged = staged[1] if staged is not None and staged[0]() is mesh else None
+        for key in [k for k, (ref, _) in list(self._staged.items()) if ref() is None]:
+            self._staged.pop(key, None)  # meshes dropped before their first render
+        gpu = _MeshOnGPU(self.ctx, mesh, staged)
         self._meshes[id(mesh)] = (weakref.ref(mesh, self._drop_mesh(id(mesh))), gpu)
         return gpu
 

@@ -10,6 +10,7 @@ placements) and the blended texture T_b, which view generation reuses.
 """
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import os
@@ -166,18 +167,26 @@ class Generate2DViews(_Stage):
         bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc="views", unit="img",
                    disable=not progress)
         rejected = {}
+        self.renderer  # made here, on the thread that renders (the helper thread stages)
+        # Python's cyclic collector kept walking every object torch, the modules and the
+        # loaded assets hold (~4% of a run's CPU in perf); frozen, it scans only what the
+        # views themselves allocate.
+        gc.freeze()
         # Compositing, the camera model and encoding run in background threads while the
         # next view renders (OpenCV, zlib and numpy release the GIL).
         with SampleWriter(threads=self.writer_threads) as writer:
-            for t, (body_id, j) in enumerate(todo):
-                state = self._body_state(body_id)
-                self._prefetch_backgrounds(todo[t:t + self.prefetch_views])
-                t0 = time.perf_counter()
-                finish = self._one_view(self.renderer, body_id, *state, j, rejected)
-                if finish is not None:
-                    writer.submit(finish)
-                self._time("views", time.perf_counter() - t0)
-                bar.update(1)
+            try:
+                for t, (body_id, j) in enumerate(todo):
+                    self._prefetch(todo[t:t + self.prefetch_views])
+                    state = self._body_state(body_id)
+                    t0 = time.perf_counter()
+                    finish = self._one_view(self.renderer, body_id, *state, j, rejected)
+                    if finish is not None:
+                        writer.submit(finish)
+                    self._time("views", time.perf_counter() - t0)
+                    bar.update(1)
+            finally:
+                self._stop_prefetch()
         bar.close()
         if rejected:
             log.info("rejected views: %s", ", ".join(f"{n}x {r}" for r, n in sorted(rejected.items())))
@@ -191,21 +200,34 @@ class Generate2DViews(_Stage):
         rng = rng_for(self.cfg.seed, "background", body_id, j)
         return int(rng.integers(n_backgrounds)), float(rng.uniform(*self.cfg.backgrounds.blur))
 
-    def _prefetch_backgrounds(self, upcoming):
-        """Make (or decode and resize) the backgrounds of the coming views in a helper
-        thread: a procedural room costs ~50 ms of numpy and OpenCV, which kept the
-        render thread waiting at every room's first use."""
-        if self.cfg.views.ambient_tint <= 0 or getattr(self, "_backgrounds", None) is None:
-            return  # without tint the index is drawn after the scene: not known ahead
+    def _prefetch(self, upcoming):
+        """In a helper thread, ahead of the coming views: load the next body from disk
+        (~0.2 s each, which the render thread used to wait for at every body change)
+        and make (or decode and resize) their backgrounds (a procedural room is ~50 ms
+        of numpy and OpenCV)."""
         from concurrent.futures import ThreadPoolExecutor
-        if getattr(self, "_bg_pool", None) is None:
-            self._bg_pool = ThreadPoolExecutor(1, thread_name_prefix="glsynth-backgrounds")
-            self._bg_futures = {}
+        if getattr(self, "_helper", None) is None:
+            self._helper = ThreadPoolExecutor(1, thread_name_prefix="glsynth-prefetch")
+            self._bg_futures, self._body_futures = {}, {}
+        if getattr(self, "_backgrounds", None) is None:
+            self._backgrounds = background_source(self.cfg)
+        current = getattr(self, "_state", (None,))[0]
+        following = next((b for b, _ in upcoming if b != (current or upcoming[0][0])), None)
+        if following is not None and following not in self._body_futures:
+            self._body_futures = {following: self._helper.submit(self._body_from_disk, following)}
+        if self.cfg.views.ambient_tint <= 0:
+            return  # without tint the background index is drawn after the scene
         size = self.cfg.views.size
         for body_id, j in upcoming:
             i, _ = self._tint_background_choice(body_id, j, len(self._backgrounds))
             if i not in self._bg_futures:
-                self._bg_futures[i] = self._bg_pool.submit(self._backgrounds.get, i, size, size)
+                self._bg_futures[i] = self._helper.submit(self._backgrounds.get, i, size, size)
+
+    def _stop_prefetch(self):
+        if getattr(self, "_helper", None) is not None:
+            self._helper.shutdown(wait=True, cancel_futures=True)
+            self._helper = None
+            self._bg_futures, self._body_futures = {}, {}
 
     def _background(self, i):
         """Background ``i`` at the view size (waiting for its prefetch if one runs)."""
@@ -215,6 +237,15 @@ class Generate2DViews(_Stage):
         size = self.cfg.views.size
         return self._backgrounds.get(i, size, size)
 
+    def _body_from_disk(self, body_id):
+        """The part of a body's view state that needs no GL: the body, its textured mesh
+        (staged for upload) and label maps."""
+        body = load_body(self.cfg, body_id)
+        textured, instances, placements = self._textures(body_id, body)
+        mesh_b = body.mesh.copy_with(texture=textured)
+        self.renderer.stage(mesh_b)
+        return body, mesh_b, instances, placements
+
     def _body_state(self, body_id):
         """Everything views of one body share; the last body's is kept."""
         cached = getattr(self, "_state", None)
@@ -223,9 +254,9 @@ class Generate2DViews(_Stage):
         t0 = time.perf_counter()
         if getattr(self, "_backgrounds", None) is None:
             self._backgrounds = background_source(self.cfg)
-        body = load_body(self.cfg, body_id)
-        textured, instances, placements = self._textures(body_id, body)
-        mesh_b = body.mesh.copy_with(texture=textured)
+        future = getattr(self, "_body_futures", {}).pop(body_id, None)
+        body, mesh_b, instances, placements = (future.result() if future is not None
+                                               else self._body_from_disk(body_id))
         # the textured mesh: it goes to the GPU for the views anyway (one upload)
         lesion_points = self._lesion_points(self.renderer, mesh_b, instances, placements)
         state = (body, mesh_b, instances, V.nevi_label_map(body), placements, lesion_points,
@@ -397,8 +428,8 @@ class _Worker:
                 run()
         return self._report()
 
-    def render(self, tasks):
-        rejected = self.views.synthesize_views(tasks, progress=False)
+    def render(self, tasks, progress=False):
+        rejected = self.views.synthesize_views(tasks, progress=progress)
         return {**self._report(), "rejected": rejected, "done": len(tasks)}
 
     def _report(self):
@@ -480,11 +511,8 @@ def generate(cfg: Config, out, resume=False, workers=1, executor="local", addres
     elif workers == 1:
         worker = _Worker(cfg, out)
         reports += [worker.prepare(b) for b in tqdm(ids, desc="paste + blend", unit="body")]
-        bar = tqdm(total=len(tasks), desc="views", unit="img")
-        for c in chunks:
-            reports.append(worker.render(c))
-            bar.update(len(c))
-        bar.close()
+        # one call for all views: the stage then loads each next body while rendering
+        reports.append(worker.render(tasks, progress=True))
     else:
         import multiprocessing as mp
         ctx = mp.get_context("spawn")  # GL contexts do not survive fork
