@@ -509,8 +509,8 @@ class Renderer:
             self._downsample["u_factor"].value = k
             self._empty_vao.render(moderngl.TRIANGLES, vertices=3)
             self.ctx.enable(moderngl.DEPTH_TEST)
-        rgba = self._read(fbo, 0, 4, "f4", np.float32)
-        return {"rgb": np.ascontiguousarray(rgba[..., :3]), "alpha": np.ascontiguousarray(rgba[..., 3])}
+        rgba = self._read(fbo, 0, 4, "f4", np.float32, flip=False)  # flipped by the split
+        return {"rgb": np.ascontiguousarray(rgba[::-1, :, :3]), "alpha": np.ascontiguousarray(rgba[::-1, :, 3])}
 
     def _bind_labels(self, gpu, mesh, label_texture, label_textures, vertex_labels) -> list:
         """Upload (once) and bind the label maps of a render; returns their names."""
