@@ -138,12 +138,14 @@ def test_resume_after_kill(dataset, tmp_path):
         args += ["--set", s]
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 600
+    # kill as the first sample's image is being written: the views render ~60 ms apart,
+    # so the run is mid-way (waiting for a finished JSON let all 4 views finish first)
     while time.time() < deadline and proc.poll() is None:
-        tgt = out / "targets"
-        if tgt.is_dir() and any(n.endswith(".json") for n in os.listdir(tgt)):
+        images = out / "images"
+        if images.is_dir() and os.listdir(images):
             proc.send_signal(signal.SIGKILL)
             break
-        time.sleep(0.05)
+        time.sleep(0.005)
     proc.wait()
     done = _samples(out) if (out / "targets").is_dir() else []
     assert len(done) < 4, "run finished before it could be killed"

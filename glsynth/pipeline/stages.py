@@ -493,7 +493,8 @@ def generate(cfg: Config, out, resume=False, workers=1, executor="local", addres
     if executor not in EXECUTORS:
         raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
     if os.path.isdir(out) and os.listdir(out) and not resume:
-        if os.path.isfile(os.path.join(out, "manifest.json")) or os.path.isdir(os.path.join(out, "targets")):
+        if os.path.isfile(os.path.join(out, "manifest.json")) or any(
+                os.path.isdir(os.path.join(out, d)) for d in ("targets", "images")):
             raise FileExistsError(f"{out}: output folder is not empty; pass --resume to continue "
                                   "the run there, or choose another folder")
     os.makedirs(out, exist_ok=True)
