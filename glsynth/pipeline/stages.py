@@ -168,6 +168,8 @@ class Generate2DViews(_Stage):
                    disable=not progress)
         rejected = {}
         self.renderer  # made here, on the thread that renders (the helper thread stages)
+        if getattr(self, "_backgrounds", None) is None:
+            self._backgrounds = background_source(self.cfg)
         # Python's cyclic collector kept walking every object torch, the modules and the
         # loaded assets hold (~4% of a run's CPU in perf); frozen, it scans only what the
         # views themselves allocate.
@@ -209,8 +211,6 @@ class Generate2DViews(_Stage):
         if getattr(self, "_helper", None) is None:
             self._helper = ThreadPoolExecutor(1, thread_name_prefix="glsynth-prefetch")
             self._bg_futures, self._body_futures = {}, {}
-        if getattr(self, "_backgrounds", None) is None:
-            self._backgrounds = background_source(self.cfg)
         current = getattr(self, "_state", (None,))[0]
         following = next((b for b, _ in upcoming if b != (current or upcoming[0][0])), None)
         if following is not None and following not in self._body_futures:
@@ -252,8 +252,6 @@ class Generate2DViews(_Stage):
         if cached is not None and cached[0] == body_id:
             return cached[1]
         t0 = time.perf_counter()
-        if getattr(self, "_backgrounds", None) is None:
-            self._backgrounds = background_source(self.cfg)
         future = getattr(self, "_body_futures", {}).pop(body_id, None)
         body, mesh_b, instances, placements = (future.result() if future is not None
                                                else self._body_from_disk(body_id))
