@@ -8,12 +8,22 @@ in vec3 in_p0;
 in vec3 in_p1;
 in vec3 in_p2;
 
+uniform mat4 u_view;
+uniform mat4 u_proj;
+
 int face_corner() { return gl_VertexID % 3; }
 
 vec3 corner_position() {
     int k = face_corner();
     return k == 0 ? in_p0 : (k == 1 ? in_p1 : in_p2);
 }
+
+// Every pass that shares a depth buffer or is compared pixel for pixel (G-buffer,
+// labels, shading, depth-only) must place corners identically: one expression, and
+// invariant so that the compiler cannot reorder it differently per program.
+invariant gl_Position;
+
+vec4 clip_position() { return u_proj * (u_view * vec4(corner_position(), 1.0)); }
 
 #ifndef POSITION_ONLY
 in vec3 in_n0;
