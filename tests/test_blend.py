@@ -7,7 +7,8 @@ import pytest
 import torch
 
 import glsynth as gs
-from glsynth.pipeline.blend import BlendError, BlendSettings, DeepBlender, gram, poisson_blend
+from glsynth.pipeline.blend import BlendError, BlendSettings, DeepBlender, gram
+from glsynth.pipeline.poisson import poisson_blend
 from glsynth.pipeline.bodies import TexelGeometry
 from glsynth.pipeline.features import VGG16Features, make_extractor
 from glsynth.pipeline.paste import PasteSettings, compose_lesion, paste_lesions, warp_lesion
@@ -84,7 +85,7 @@ def test_paste_round_trip_psnr(scene):
 def test_only_lesion_texels_change(scene):
     outside = scene.pasted.instances == 0
     assert (scene.pasted.pasted[outside] == scene.pasted.original[outside]).all()
-    blended = poisson_blend(scene.r, scene.body.mesh, scene.pasted, scene.tx, BlendSettings(method="poisson"))
+    blended = poisson_blend(scene.r, scene.body.mesh, scene.pasted, scene.tx)
     assert (blended[outside] == scene.pasted.pasted[outside]).all()
 
 
@@ -110,7 +111,7 @@ def _seam_error(scene, texture):
 
 def test_poisson_blend_removes_the_seam(scene):
     err_paste, img_p, lab = _seam_error(scene, scene.pasted.pasted)
-    blended = poisson_blend(scene.r, scene.body.mesh, scene.pasted, scene.tx, BlendSettings(method="poisson"))
+    blended = poisson_blend(scene.r, scene.body.mesh, scene.pasted, scene.tx)
     err_blend, img_b, _ = _seam_error(scene, blended)
     assert err_paste > 0.05  # the photo's skin differs from the body's
     assert err_blend < 0.5 * err_paste

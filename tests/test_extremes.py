@@ -536,10 +536,11 @@ def test_no_lesions_and_rgb_only_leave_everything_else_out(tmp_path, monkeypatch
     anything it was not asked for."""
     import glsynth.pipeline.blend as blend
     import glsynth.pipeline.features as features
+    import glsynth.pipeline.poisson as poisson
     from glsynth.config import load_config
     monkeypatch.setattr(features, "make_extractor", lambda *a, **k: pytest.fail("built a feature network"))
     monkeypatch.setattr(blend, "DeepBlender", lambda *a, **k: pytest.fail("constructed a DeepBlender"))
-    monkeypatch.setattr(blend, "poisson_blend", lambda *a, **k: pytest.fail("ran a Poisson blend"))
+    monkeypatch.setattr(poisson, "poisson_blend", lambda *a, **k: pytest.fail("ran a Poisson blend"))
     cfg = load_config(None, TINY + ["lesions.per_body=0", "outputs=[rgb]", "blend.method=deep"])
     gs.pipeline.generate(cfg, tmp_path / "rgb")
     out = tmp_path / "rgb"
@@ -554,6 +555,18 @@ def test_no_lesions_and_rgb_only_leave_everything_else_out(tmp_path, monkeypatch
     for n in tgt:
         meta = json.load(open(out / "targets" / n))
         assert meta["lesions"] == []
+
+
+def test_a_poisson_run_never_imports_torch(tmp_path):
+    """Only the deep blend uses torch; paste, Poisson blend and views leave it out (its
+    import is ~1.3 s of every run's start-up). In a fresh interpreter, as a user runs."""
+    script = ("import sys\nimport glsynth as gs\nfrom glsynth.config import load_config\n"
+              f"cfg = load_config(None, {TINY + ['lesions.per_body=1', 'blend.method=poisson']!r})\n"
+              f"gs.pipeline.generate(cfg, {str(tmp_path / 'p')!r})\n"
+              "print('torch' in sys.modules)\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert list((tmp_path / "p").glob("bodies/*/blended.png")) and proc.stdout.split()[-1] == "False"
 
 
 def test_labels_only_output_skips_shading(tmp_path, monkeypatch):

@@ -567,12 +567,13 @@ class BlendEval:
     view, the seam error and the interior colour error (unlit views)."""
 
     def __init__(self, sc, extractor, settings):
-        from glsynth.pipeline.blend import DeepBlender, _crop_box
+        from glsynth.pipeline.blend import DeepBlender
+        from glsynth.pipeline.poisson import crop_box
         self.sc = sc
         self.b = DeepBlender(sc.r, sc.mesh, sc.pasted, settings, extractor)
         p = sc.placement
         view = gs.Camera.from_dict(p.camera)
-        x0, y0, x1, y1 = _crop_box(p, view.width, settings.pad)
+        x0, y0, x1, y1 = crop_box(p, view.width, settings.pad)
         self.batch = self.b._view_batch(view.crop(x0, y0, x1 - x0, y1 - y0), p.instance)
         tx0, ty0, tx1, ty1 = p.texel_box
         h, w = sc.pasted.instances.shape
@@ -614,7 +615,8 @@ class BlendEval:
 
 def study_blending(ctx, steps=400, lbfgs_steps=50, tune_lrs=(0.002, 0.01, 0.02, 0.05), tune_steps=None,
                    ref_factor=3, view=192):
-    from glsynth.pipeline.blend import BlendSettings, DeepBlender, poisson_blend
+    from glsynth.pipeline.blend import BlendSettings, DeepBlender
+    from glsynth.pipeline.poisson import poisson_blend
     from glsynth.pipeline.features import find_vgg_weights, make_extractor
     from glsynth.pipeline.seeding import rng_for, torch_seed
     sc = _sheet_scene(ctx, view)
@@ -662,7 +664,7 @@ def study_blending(ctx, steps=400, lbfgs_steps=50, tune_lrs=(0.002, 0.01, 0.02, 
     # L-BFGS evaluates the loss several times per iteration (line search)
     runs[f"L-BFGS lr 1 ({lbfgs_steps} it.)"] = run(1.0, "lbfgs", lbfgs_steps, checkpoints(3 * lbfgs_steps))
     t0 = time.perf_counter()
-    pois_tex = poisson_blend(sc.r, sc.mesh, sc.pasted, sc.tx, BlendSettings(method="poisson"))
+    pois_tex = poisson_blend(sc.r, sc.mesh, sc.pasted, sc.tx)
     t_pois = time.perf_counter() - t0
     pois = ev.metrics(pois_tex)
     # reference: a long run of the best deep method (lowest final loss)

@@ -14,6 +14,7 @@ import gc
 import json
 import logging
 import os
+import sys
 import threading
 import time
 
@@ -112,10 +113,7 @@ class BlendLesions(_Stage):
     """Blend every pasted body's lesions (method from the config); writes blended.png."""
 
     def blend_lesions(self):
-        from .blend import BlendSettings, DeepBlender, poisson_blend
         cfg, b = self.cfg, self.cfg.blend
-        settings = BlendSettings(b.method, b.steps, b.lr, b.optimizer, b.content, b.style, b.gradient,
-                                 b.tv, b.pad, b.perturb_deg, b.perturb_w)
         extractor = getattr(self, "_extractor", None)
         self.feature_description = getattr(self, "feature_description", "none")
         for body_id in tqdm(self.body_ids, desc=f"blend ({b.method})", unit="body"):
@@ -130,9 +128,13 @@ class BlendLesions(_Stage):
             if b.method == "paste" or not pasted.placements:
                 blended = pasted.pasted
             elif b.method == "poisson":
+                from .poisson import poisson_blend
                 blended = poisson_blend(renderer, body.mesh, pasted, TexelGeometry.of(renderer, body.mesh),
-                                        settings)
+                                        b.pad)
             else:
+                from .blend import BlendSettings, DeepBlender  # torch: imported only to blend deep
+                settings = BlendSettings(b.method, b.steps, b.lr, b.optimizer, b.content, b.style,
+                                         b.gradient, b.tv, b.pad, b.perturb_deg, b.perturb_w)
                 if settings.needs_features and extractor is None:
                     from .features import make_extractor
                     extractor, self.feature_description = make_extractor(b.features, b.vgg_weights)
@@ -168,6 +170,8 @@ class Generate2DViews(_Stage):
                    disable=not progress)
         rejected = {}
         self.renderer  # made here, on the thread that renders (the helper thread stages)
+        if todo:  # the first body loads in the helper thread while the backgrounds are made
+            self._load_body_ahead(todo[0][0])
         if getattr(self, "_backgrounds", None) is None:
             self._backgrounds = background_source(self.cfg)
         # Python's cyclic collector kept walking every object torch, the modules and the
@@ -207,21 +211,31 @@ class Generate2DViews(_Stage):
         (~0.2 s each, which the render thread used to wait for at every body change)
         and make (or decode and resize) their backgrounds (a procedural room is ~50 ms
         of numpy and OpenCV)."""
-        from concurrent.futures import ThreadPoolExecutor
-        if getattr(self, "_helper", None) is None:
-            self._helper = ThreadPoolExecutor(1, thread_name_prefix="glsynth-prefetch")
-            self._bg_futures, self._body_futures = {}, {}
         current = getattr(self, "_state", (None,))[0]
         following = next((b for b, _ in upcoming if b != (current or upcoming[0][0])), None)
-        if following is not None and following not in self._body_futures:
-            self._body_futures = {following: self._helper.submit(self._body_from_disk, following)}
+        if following is not None:
+            self._load_body_ahead(following)
         if self.cfg.views.ambient_tint <= 0:
             return  # without tint the background index is drawn after the scene
         size = self.cfg.views.size
         for body_id, j in upcoming:
             i, _ = self._tint_background_choice(body_id, j, len(self._backgrounds))
             if i not in self._bg_futures:
-                self._bg_futures[i] = self._helper.submit(self._backgrounds.get, i, size, size)
+                self._bg_futures[i] = self._submit(self._backgrounds.get, i, size, size)
+
+    def _submit(self, fn, *args):
+        """Run ``fn(*args)`` in the helper thread (made on first use)."""
+        from concurrent.futures import ThreadPoolExecutor
+        if getattr(self, "_helper", None) is None:
+            self._helper = ThreadPoolExecutor(1, thread_name_prefix="glsynth-prefetch")
+            self._bg_futures, self._body_futures = {}, {}
+        return self._helper.submit(fn, *args)
+
+    def _load_body_ahead(self, body_id):
+        """Start loading ``body_id`` in the helper thread; ``_body_state`` collects it."""
+        if body_id not in getattr(self, "_body_futures", {}):
+            future = self._submit(self._body_from_disk, body_id)
+            self._body_futures[body_id] = future
 
     def _stop_prefetch(self):
         if getattr(self, "_helper", None) is not None:
@@ -448,13 +462,16 @@ def share_cores(threads: int):
     (read when the GL context is made, so call this first; a user's LP_NUM_THREADS
     wins), OpenCV's and torch's. Each pool defaults to every core, so N worker
     processes oversubscribed the machine N-fold: 2 workers on 2 cores ran at 0.7x
-    the samples/s of one, 8 on 16 cores at 0.75x."""
+    the samples/s of one, 8 on 16 cores at 0.75x. Torch is imported only by a deep
+    blend: until then its share is passed on through OMP_NUM_THREADS."""
     import cv2
-    import torch
     threads = max(1, int(threads))
     os.environ.setdefault("LP_NUM_THREADS", str(threads))
     cv2.setNumThreads(threads)
-    torch.set_num_threads(threads)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(threads)
+    else:
+        os.environ["OMP_NUM_THREADS"] = str(threads)
 
 
 def _worker_init(cfg_dict, out, threads):
