@@ -113,7 +113,7 @@ def colourise(name: str, layers: dict) -> np.ndarray:
     """The H x W x 3 uint8 image the window shows for buffer ``name`` of ``layers`` (the
     dict ``glsynth.pipeline.views.render_view`` returns)."""
     if name == "rgb":
-        return np.clip(np.round(layers["rgb"] * 255), 0, 255).astype(np.uint8)
+        return np.ascontiguousarray(layers["rgba"][..., :3])  # over black
     if name == "semantic":
         return SEMANTIC_PALETTE[np.minimum(layers["semantic"], 3)]
     if name == "instances":
@@ -603,7 +603,7 @@ class Viewer:
         self.saved += 1
         sid = f"{self.scene.body_id}_preview{self.saved:04d}"
         h, w = layers["semantic"].shape
-        layers["image"] = V.composite(layers["rgb"], layers["alpha"], np.zeros((h, w, 3), np.uint8), 0)
+        layers["image"] = V.composite(layers["rgba"], np.zeros((h, w, 3), np.uint8), 0)
         cam = self.camera
         meta = {"id": sid, "width": w, "height": h, "buffer_on_screen": self.buffer,
                 "camera": {**cam.to_dict(), "intrinsics": cam.intrinsics().tolist(),

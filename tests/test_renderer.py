@@ -8,6 +8,7 @@ import pytest
 
 import glsynth as gs
 from glsynth.gl.renderer import vertex_label_image
+from glsynth.lighting import PointLight
 from shapes import box, plane, ray_face_depth, sphere
 
 W_RANGE = (0.005, 0.01, 0.1, 1.0, 10.0, 100.0)
@@ -427,7 +428,29 @@ def test_supersampled_edges_composite_without_a_dark_fringe(renderer, rng):
         edge = (out["alpha"] > 0) & (out["alpha"] < 1)
         assert edge.sum() > 20
         np.testing.assert_allclose(out["rgb"][edge], np.repeat(out["alpha"][edge, None], 3, 1), atol=1e-6)
-        assert (composite(out["rgb"], out["alpha"], white, 0) == 255).all()
+        rgba8 = renderer.render(mesh, cam, passes=("rgb",), **aa, buffers=("rgba8",),
+                                lights=[PointLight((0, 0, 1.0), ambient=1.0, diffuse=0.0, specular=0.0)])
+        assert (composite(rgba8["rgba8"], white, 0) == 255).all()
+
+
+@pytest.mark.parametrize("aa", [{}, {"multisample": 4}, {"supersample": 2}, {"multisample": 4, "supersample": 2}])
+def test_rgba8_is_the_float_shading_rounded(renderer, rng, aa):
+    """``buffers=("rgba8",)`` resolves into 8 bits: the float result rounded (one more
+    rounding where MSAA averages 8-bit samples), never anything else."""
+    mesh = sphere(rng) if rng.random() < 0.5 else box(rng)
+    d = rng.normal(size=3)
+    cam = gs.Camera.look_at(d / np.linalg.norm(d) * rng.uniform(0.9, 2.0), rng.normal(scale=0.05, size=3),
+                            up=rng.normal(size=3), width=renderer.width, height=renderer.height,
+                            fov_deg=rng.uniform(30, 60))
+    light = [PointLight(cam.eye + rng.normal(scale=0.3, size=3), ambient=0.3, diffuse=0.7, specular=0.2)]
+    f = renderer.render(mesh, cam, passes=("rgb",), lights=light, shadows=True, **aa)
+    u = renderer.render(mesh, cam, passes=("rgb",), lights=light, shadows=True, buffers=("rgba8",), **aa)["rgba8"]
+    assert u.dtype == np.uint8 and u.shape == (renderer.height, renderer.width, 4)
+    want = np.concatenate([f["rgb"], f["alpha"][..., None]], -1) * 255
+    assert np.abs(u - want).max() <= 1.0
+    assert np.abs(u - want).mean() < 0.3
+    with pytest.raises(ValueError, match="not both"):
+        renderer.render(mesh, cam, passes=("rgb",), buffers=("rgb", "rgba8"))
 
 
 def test_uv_space_window_equals_the_crop_of_the_full_raster(renderer, rng):

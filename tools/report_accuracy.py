@@ -394,7 +394,7 @@ def study_view_resolution(ctx, n_cams=4, repeats=2, factor=8, sizes=(256, 512, 1
                                       nevi, scene, v, outputs)
                     bg = backgrounds.get(0, size, size)
                     t0 = time.perf_counter()
-                    layers["image"] = V.composite(layers["rgb"], layers["alpha"], bg, 1.0)
+                    layers["image"] = V.composite(layers["rgba"], bg, 1.0)
                     write_sample(tmp, f"s{size}_{ci}_{rep}", layers, {"id": "x"}, outputs)
                     tw = time.perf_counter() - t0
                     if rep:

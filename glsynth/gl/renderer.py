@@ -319,6 +319,9 @@ class Renderer:
             colors = [ctx.renderbuffer((w, h), 4, dtype="f1")]
         elif kind == "resolve":
             colors, depth = [ctx.renderbuffer((w, h), 4, dtype="f4")], None
+        elif kind in ("rgb8", "resolve8"):  # 8-bit shading targets read back as rgba8
+            colors = [ctx.renderbuffer((w, h), 4, dtype="f1")]
+            depth = depth if kind == "rgb8" else None
         else:
             raise KeyError(kind)
         fbo = ctx.framebuffer(color_attachments=colors, depth_attachment=depth)
@@ -338,7 +341,11 @@ class Renderer:
           rgb:     rgb float32 x3 in [0, 1], premultiplied by alpha (background samples
                    are black), alpha float32 (coverage, fractional with supersampling or
                    multisampling); ``shadows=True`` first renders a shadow map from the
-                   first light (soft shadows on its diffuse and specular terms)
+                   first light (soft shadows on its diffuse and specular terms). With
+                   ``buffers=("rgba8",)`` instead: rgba8, the same premultiplied RGB and
+                   coverage as uint8 H x W x 4, resolved and read back at 8 bits (a
+                   quarter of the bytes; the float result rounded, up to one level
+                   off where a GL resolves MSAA samples differently)
           labels:  labels uint16 (from ``label_texture``) or one uint16 array per name
                    of ``label_textures`` (UV-space maps) and of ``vertex_labels``
                    (per-vertex integer arrays: each pixel takes the label of its face's
@@ -378,7 +385,7 @@ class Renderer:
         if "labels" in passes:
             labels = self._bind_labels(gpu, mesh, label_texture, label_textures, vertex_labels)
         if want is not None:
-            known = set(GBUFFER_LAYERS) | {"rgb", "alpha"} | set(labels or ())
+            known = set(GBUFFER_LAYERS) | {"rgb", "alpha", "rgba8"} | set(labels or ())
             if want - known:
                 raise ValueError(f"unknown buffer(s) {sorted(want - known)}; these passes make "
                                  f"{sorted(known)}")
@@ -389,8 +396,11 @@ class Renderer:
         if "rgb" in passes:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
+            eight_bit = want is not None and "rgba8" in want
+            if eight_bit and {"rgb", "alpha"} & want:
+                raise ValueError("ask for rgb and alpha (float32) or rgba8, not both")
             out.update(self._render_rgb(gpu, mesh, mats, camera, lights, material, supersample,
-                                        size, shadows, multisample))
+                                        size, shadows, multisample, eight_bit))
         return out
 
     @staticmethod
@@ -483,7 +493,7 @@ class Renderer:
         return out
 
     def _render_rgb(self, gpu, mesh, mats, camera, lights, material, supersample, size, shadows,
-                    multisample=0):
+                    multisample=0, eight_bit=False):
         k, n = int(supersample), int(multisample)
         if not 1 <= k <= MAX_SUPERSAMPLE:
             raise ValueError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
@@ -491,7 +501,9 @@ class Renderer:
             raise ValueError(f"multisample must be 0 or a power of two up to {self.ctx.max_samples} "
                              f"(the most {self.info.get('GL_RENDERER')} supports), got {multisample}")
         prog = self._shading_program(gpu, mesh, camera, lights, material, shadows)
-        fbo = self._fbo("rgb", size[0] * k, size[1] * k)
+        # 8-bit: resolve (average the samples) straight into unorm8, a quarter of the
+        # read-back; the k x k downsample still reads float samples
+        fbo = self._fbo("rgb8" if eight_bit and k == 1 else "rgb", size[0] * k, size[1] * k)
         if n > 1:  # draw with MSAA, then resolve (average the samples) into the plain target
             msaa = self._fbo(f"rgb-msaa{n}", *fbo.size)
             self._draw(gpu, prog, msaa, mats)
@@ -500,7 +512,7 @@ class Renderer:
             self._draw(gpu, prog, fbo, mats)
         if k > 1:
             src = fbo.color_attachments[0]
-            fbo = self._fbo("resolve", *size)
+            fbo = self._fbo("resolve8" if eight_bit else "resolve", *size)
             fbo.use()
             fbo.viewport = (0, 0, *size)
             self.ctx.disable(moderngl.DEPTH_TEST)
@@ -509,6 +521,8 @@ class Renderer:
             self._downsample["u_factor"].value = k
             self._empty_vao.render(moderngl.TRIANGLES, vertices=3)
             self.ctx.enable(moderngl.DEPTH_TEST)
+        if eight_bit:
+            return {"rgba8": self._read(fbo, 0, 4, "f1", np.uint8)}
         rgba = self._read(fbo, 0, 4, "f4", np.float32, flip=False)  # flipped by the split
         return {"rgb": np.ascontiguousarray(rgba[::-1, :, :3]), "alpha": np.ascontiguousarray(rgba[::-1, :, 3])}
 

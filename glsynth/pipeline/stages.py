@@ -372,7 +372,7 @@ class Generate2DViews(_Stage):
         def finish():
             t0 = time.perf_counter()
             if "rgb" in outputs:
-                image = V.composite(layers["rgb"], layers["alpha"], background, blur)
+                image = V.composite(layers["rgba"], background, blur)
                 # RGB only: every label layer stays the sharp geometric truth
                 layers["image"] = photo.apply(image, photo_params, layers["depth"])
             write_sample(out, sid, layers, meta, outputs)

@@ -154,8 +154,8 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     if "rgb" in outputs:
         shaded = renderer.render(mesh_b, scene.camera, passes=("rgb",), lights=scene.lights,
                                  material=scene.material, supersample=v.supersample,
-                                 multisample=v.multisample, shadows=v.shadows)
-        layers["rgb"], layers["alpha"] = shaded["rgb"], shaded["alpha"]
+                                 multisample=v.multisample, shadows=v.shadows, buffers=("rgba8",))
+        layers["rgba"] = shaded["rgba8"]  # premultiplied RGB + coverage, uint8
     if parts:
         layers["anatomy"] = out["anatomy"].astype(np.uint8)
     if "face_id" in outputs:
@@ -208,13 +208,12 @@ def nevi_label_map(body):
     return m
 
 
-def composite(rgb, alpha, background, blur_radius):
-    """Body over the background (blurred with a Gaussian of the given radius). ``rgb``
-    is premultiplied by the coverage ``alpha``, as the renderer returns it: a pixel half
-    covered by the body holds half its colour."""
-    bg = background.astype(np.float32) / 255
+def composite(rgba, background, blur_radius):
+    """Body over the background (blurred with a Gaussian of the given radius), uint8.
+    ``rgba`` is the renderer's premultiplied RGB and coverage (uint8, ``rgba8``): a
+    pixel half covered by the body holds half its colour."""
     if blur_radius > 0:
-        sigma = max(blur_radius, 1e-3)
-        bg = cv2.GaussianBlur(bg, (0, 0), sigmaX=sigma)
-    img = rgb + bg * (1 - alpha[..., None])
-    return np.clip(np.round(img * 255), 0, 255).astype(np.uint8)
+        background = cv2.GaussianBlur(background, (0, 0), sigmaX=max(blur_radius, 1e-3))
+    uncovered = (255 - rgba[..., 3:]).astype(np.float32) * np.float32(1 / 255)
+    img = rgba[..., :3] + background * uncovered
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
