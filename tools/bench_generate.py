@@ -1,15 +1,20 @@
 """End-to-end generation throughput and blend cost, measured in one run.
 
-    .venv/bin/python tools/bench_generate.py [--views 40] [--repeats 3] [--blend-steps 400]
+    .venv/bin/python tools/bench_generate.py [--views 40] [--short 10] [--repeats 3] [--blend-steps 400]
 
 1. Annotated 512x512 samples per second for the default config (bodies cached, lesions
-   pasted and blended beforehand) with 1 and 2 worker processes, median of
-   ``--repeats`` runs, with the per-stage split from the manifest.
+   pasted and blended beforehand) with 1 and 2 worker processes, with the per-stage split
+   from the manifest. Each repeat runs ``--short`` and then ``--views`` views per body
+   (2 bodies) in this process: the steady-state rate is the difference of the two runs
+   (what a long dataset run sustains), the fixed cost is what a run spends beyond it
+   (worker start-up, the first body's load, procedural rooms, COCO at the end), and the
+   end-to-end rate is that of the longer run. Medians over ``--repeats``.
 2. Seconds per blended lesion: deep blend (paper settings, 400 steps) with the
    weight-free filter bank, with VGG16 when weights are found locally, and Poisson.
 3. RGB-only generation against the default targets and against all eight targets
    (what leaving out unused passes, read-backs and writes saves), with the CPU time per
-   sample (all processes; on 2 cores, samples/s can be at most 2000 / core-ms).
+   sample in the steady state (all processes; on 2 cores, samples/s can be at most
+   2000 / core-ms).
 """
 from __future__ import annotations
 
@@ -35,27 +40,40 @@ def _cpu_seconds():
     return t.user + t.system + t.children_user + t.children_system
 
 
-def _views_run(overrides, workers, repeats, prepared):
-    """Median samples/s and CPU ms per sample of the view stage over repeats
+def _timed_run(overrides, workers, prepared):
+    """(samples, wall seconds, CPU seconds, manifest) of one views run."""
+    out = tempfile.mkdtemp(prefix="glsynth-bench-")
+    shutil.copytree(f"{prepared}/bodies", f"{out}/bodies")
+    cfg = load_config(None, overrides)
+    t0, c0 = time.perf_counter(), _cpu_seconds()
+    manifest = generate(cfg, out, resume=True, workers=workers)
+    dt, dc = time.perf_counter() - t0, _cpu_seconds() - c0
+    shutil.rmtree(out)
+    return manifest["counts"]["images"], dt, dc, manifest
+
+
+def _views_run(overrides, workers, repeats, prepared, views, short):
+    """Medians over repeats of: steady-state samples/s and CPU ms per sample (the
+    difference between a ``short`` and a ``views`` views-per-body run), the fixed
+    seconds per run beyond the steady state, and the longer run's end-to-end samples/s
     (paste/blend results reused)."""
-    rates, cpu, manifest = [], [], None
+    steady, cpu, fixed, end_to_end, manifest = [], [], [], [], None
     for _ in range(repeats):
-        out = tempfile.mkdtemp(prefix="glsynth-bench-")
-        shutil.copytree(f"{prepared}/bodies", f"{out}/bodies")
-        cfg = load_config(None, overrides)
-        t0, c0 = time.perf_counter(), _cpu_seconds()
-        manifest = generate(cfg, out, resume=True, workers=workers)
-        dt, dc = time.perf_counter() - t0, _cpu_seconds() - c0
-        n = manifest["counts"]["images"]
-        rates.append(n / dt)
-        cpu.append(1e3 * dc / n)
-        shutil.rmtree(out)
-    return statistics.median(rates), statistics.median(cpu), manifest
+        n0, t0, c0, _ = _timed_run(overrides + [f"views.per_body={short}"], workers, prepared)
+        n1, t1, c1, manifest = _timed_run(overrides + [f"views.per_body={views}"], workers, prepared)
+        rate = (n1 - n0) / (t1 - t0)
+        steady.append(rate)
+        cpu.append(1e3 * (c1 - c0) / (n1 - n0))
+        fixed.append(t1 - n1 / rate)
+        end_to_end.append(n1 / t1)
+    med = statistics.median
+    return med(steady), med(cpu), med(fixed), med(end_to_end), manifest
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--views", type=int, default=40, help="views per body (2 bodies)")
+    ap.add_argument("--views", type=int, default=40, help="views per body (2 bodies), longer run")
+    ap.add_argument("--short", type=int, default=10, help="views per body of the shorter run")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--blend-steps", type=int, default=400)
     ap.add_argument("--workers", default="1,2",
@@ -68,21 +86,26 @@ def main(argv=None):
     generate(load_config(None, base + ["views.per_body=0"]), prepared)  # bodies, paste, blend
 
     print("## Samples per second (512x512, default config, views stage incl. writing)\n")
-    print("| outputs | workers | samples/s | CPU core-ms per sample | per-stage seconds (summed over workers) |")
-    print("|---|---:|---:|---:|---|")
+    print(f"Steady state: the difference between runs of {2 * args.short} and {2 * args.views} samples; "
+          f"end to end: the {2 * args.views}-sample run; medians of {args.repeats}.\n")
+    print("| outputs | workers | samples/s, steady state | CPU core-ms per sample | fixed s per run "
+          f"| samples/s, {2 * args.views} end to end | per-stage seconds (longer run, summed over workers) |")
+    print("|---|---:|---:|---:|---:|---:|---|")
     rows = {}
     for name, extra, worker_counts in (("default (5 targets)", [], counts),
                                        ("all 8 targets", [ALL_TARGETS], counts[:1]),
                                        ("RGB only", ["outputs=[rgb]"], counts)):
         for workers in worker_counts:
-            rate, cpu, man = _views_run(base + extra, workers, args.repeats, prepared)
+            rate, cpu, fixed, e2e, man = _views_run(extra, workers, args.repeats, prepared,
+                                                    args.views, args.short)
             rows[(name, workers)] = rate
             split = {k: v for k, v in man["timings_seconds"].items() if k != "total"}
-            print(f"| {name} | {workers} | {rate:.2f} | {cpu:.0f} | {json.dumps(split)} |")
+            print(f"| {name} | {workers} | {rate:.2f} | {cpu:.0f} | {fixed:.2f} | {e2e:.2f} | "
+                  f"{json.dumps(split)} |", flush=True)
     one, most = counts[0], counts[-1]
     rgb = rows[("RGB only", one)]
-    print(f"\nRGB-only vs default targets: {rgb / rows[('default (5 targets)', one)]:.2f}x, vs all 8 "
-          f"targets: {rgb / rows[('all 8 targets', one)]:.2f}x ({one} worker(s)); {most} vs {one} "
+    print(f"\nSteady state, RGB-only vs default targets: {rgb / rows[('default (5 targets)', one)]:.2f}x, "
+          f"vs all 8 targets: {rgb / rows[('all 8 targets', one)]:.2f}x ({one} worker(s)); {most} vs {one} "
           f"workers (default): {rows[('default (5 targets)', most)] / rows[('default (5 targets)', one)]:.2f}x")
     print(f"GL_RENDERER: {man['gl_renderer']}\n")
 

@@ -74,7 +74,7 @@ def read_json(path):
 
 def finalize(out_dir, manifest: dict):
     """COCO annotations, params.csv and manifest.json from every complete sample."""
-    from ..io.images import read_image
+    from concurrent.futures import ThreadPoolExecutor
     tgt = os.path.join(out_dir, "targets")
     ids = sorted(f[:-5] for f in os.listdir(tgt) if f.endswith(".json")) if os.path.isdir(tgt) else []
     coco = {"info": {"description": "glsynth synthetic dermatology images",
@@ -82,24 +82,15 @@ def finalize(out_dir, manifest: dict):
             "categories": [{"id": 1, "name": "lesion", "supercategory": "skin condition"}],
             "images": [], "annotations": []}
     rows = []
-    ann_id = 1
-    for img_id, sid in enumerate(ids, 1):
-        meta = read_json(os.path.join(tgt, f"{sid}.json"))
-        h, w = meta["height"], meta["width"]
-        coco["images"].append({"id": img_id, "file_name": f"images/{sid}.png", "width": w,
-                               "height": h, "glsynth_id": sid})
-        inst_path = os.path.join(tgt, f"{sid}_instances.png")
-        inst = read_image(inst_path) if os.path.isfile(inst_path) else None
-        for lesion in meta["lesions"]:
-            x0, y0, x1, y1 = lesion["box"]
-            ann = {"id": ann_id, "image_id": img_id, "category_id": 1, "iscrowd": 0,
-                   "bbox": [x0, y0, x1 - x0, y1 - y0], "area": int(lesion["area"]),
-                   "glsynth_instance": lesion["instance"]}
-            if inst is not None:
-                ann["segmentation"] = rle_encode(inst == lesion["instance"])
-            coco["annotations"].append(ann)
-            ann_id += 1
-        rows.append(_param_row(sid, meta))
+    # decoding the instance PNGs is most of the work and releases the GIL: in threads
+    with ThreadPoolExecutor(max(1, min(8, os.cpu_count() or 1))) as pool:
+        samples = pool.map(lambda sid: _coco_entries(tgt, sid), ids)
+        for img_id, (sid, meta, anns) in enumerate(samples, 1):
+            coco["images"].append({"id": img_id, "file_name": f"images/{sid}.png", "width": meta["width"],
+                                   "height": meta["height"], "glsynth_id": sid})
+            for ann in anns:
+                coco["annotations"].append({"id": len(coco["annotations"]) + 1, "image_id": img_id, **ann})
+            rows.append(_param_row(sid, meta))
     write_text(os.path.join(out_dir, "annotations.coco.json"), json.dumps(coco))
     if rows:
         buf = io.StringIO()
@@ -107,8 +98,25 @@ def finalize(out_dir, manifest: dict):
         writer.writeheader()
         writer.writerows(rows)
         write_text(os.path.join(out_dir, "params.csv"), buf.getvalue())
-    manifest["counts"] = {"images": len(ids), "lesion_annotations": ann_id - 1}
+    manifest["counts"] = {"images": len(ids), "lesion_annotations": len(coco["annotations"])}
     write_text(os.path.join(out_dir, "manifest.json"), json.dumps(manifest, indent=1, sort_keys=True))
+
+
+def _coco_entries(tgt, sid):
+    """(sid, per-image JSON, its COCO annotations without ids)."""
+    from ..io.images import read_image
+    meta = read_json(os.path.join(tgt, f"{sid}.json"))
+    inst_path = os.path.join(tgt, f"{sid}_instances.png")
+    inst = read_image(inst_path) if os.path.isfile(inst_path) else None
+    anns = []
+    for lesion in meta["lesions"]:
+        x0, y0, x1, y1 = lesion["box"]
+        ann = {"category_id": 1, "iscrowd": 0, "bbox": [x0, y0, x1 - x0, y1 - y0],
+               "area": int(lesion["area"]), "glsynth_instance": lesion["instance"]}
+        if inst is not None:
+            ann["segmentation"] = rle_encode(inst == lesion["instance"])
+        anns.append(ann)
+    return sid, meta, anns
 
 
 def _param_row(sid, meta) -> dict:
