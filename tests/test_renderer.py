@@ -9,7 +9,7 @@ import pytest
 import glsynth as gs
 from glsynth.gl.renderer import vertex_label_image
 from glsynth.lighting import PointLight
-from shapes import box, plane, ray_face_depth, sphere
+from shapes import box, plane, ray_face_depth, skin_sheet, sphere
 
 W_RANGE = (0.005, 0.01, 0.1, 1.0, 10.0, 100.0)
 
@@ -518,3 +518,42 @@ def test_mesh_staged_in_another_thread_renders_the_same(renderer, rng):
     assert id(staged) not in renderer._staged  # used by the upload, then dropped
     for k in a:
         np.testing.assert_array_equal(a[k], b[k])
+
+
+@pytest.mark.parametrize("w", [0.01, 0.3, 3.0])
+@pytest.mark.parametrize("shape", ["sphere", "sheet"])
+def test_frustum_culling_changes_no_pixel(renderer, rng, w, shape):
+    """Runs of faces outside the view are skipped: every buffer, the shading with a
+    shadow map (culled from the light), a crop and the depth-only draw are the same as
+    drawing every face, while a close-up of a sheet (faces in row order, like a body's
+    parts) draws a small part of it."""
+    if shape == "sphere":
+        mesh = sphere(rng, radius=0.5, subdivisions=5)  # 20k faces, icosphere order
+    else:
+        mesh = skin_sheet(rng, n=100, tex=64).mesh  # 20k faces, 0.6 m x 0.6 m
+    cam = _random_surface_camera(rng, mesh, w, renderer.width, renderer.height)
+    light = [PointLight(np.asarray(cam.eye) + rng.normal(scale=0.2, size=3), ambient=0.2, diffuse=0.8)]
+    crop = cam.crop(int(rng.integers(0, 64)), int(rng.integers(0, 48)), 40, 30)
+
+    def draw_all():
+        out = renderer.render(mesh, cam, passes=("gbuffer", "rgb", "labels"), lights=light,
+                              multisample=4, shadows=True, label_texture=np.arange(64 * 64).reshape(64, 64) % 7)
+        out["crop"] = renderer.render(mesh, crop, passes=("gbuffer",))["face_id"]
+        out["probe"] = renderer.depth(mesh, cam)
+        return out
+    culled = draw_all()
+    try:
+        renderer.frustum_culling = False
+        full = draw_all()
+    finally:
+        del renderer.frustum_culling  # back to the class default
+    for name in full:
+        np.testing.assert_array_equal(culled[name], full[name], err_msg=name)
+    if shape == "sheet":  # a close-up straight at the middle of the sheet
+        i = len(mesh.vertices) // 2 + 50
+        close = gs.Camera.from_surface(mesh.vertices[i], mesh.vertex_normals[i], 0.01,
+                                       width=renderer.width, height=renderer.height, fov_deg=40)
+        with renderer.ctx:
+            gpu = renderer._gpu_mesh(mesh)
+            drawn = sum(n for _, n in gpu.visible_ranges(renderer._matrices(gpu, mesh, close)["frustum"]))
+        assert 0 < drawn < 0.2 * gpu.count  # 14%: the rows of faces through the view
