@@ -611,8 +611,7 @@ class Viewer:
                 "light": self.light.to_dict(), "material": self.material.to_dict(),
                 "lights": [{**self.light.to_dict(), "kind": "room"}],
                 "body": {"id": self.scene.body_id},
-                "lesions": [{"instance": k, "box": b, "area": int((layers["instances"] == k).sum())}
-                            for k, b in layers["boxes"].items()],
+                "lesions": [{"instance": k, **region} for k, region in layers["regions"].items()],
                 "box_convention": "[x0, y0, x1, y1] pixels, x1/y1 exclusive"}
         outputs = ("rgb", "semantic", "instances", "anatomy", "depth", "normals", "uv", "face_id")
         write_sample(self.save_dir, sid, layers, meta, outputs)

@@ -336,12 +336,11 @@ class Generate2DViews(_Stage):
             background = backgrounds.get(bg_index, v.size, v.size)
         by_instance = {p.instance: p for p in placements}
         lesions = []
-        for k, box in layers["boxes"].items():
+        for k, region in layers["regions"].items():
             p = by_instance.get(k)
-            lesions.append({"instance": k, "box": box, "area": int((layers["instances"] == k).sum()),
+            lesions.append({"instance": k, "box": region["box"], "area": region["area"],
                             "lesion_id": p.lesion_id if p else None,
                             "source": p.lesion_meta if p else None})
-        n = layers["semantic"].size
         view = cam.view_matrix()
         meta = {"id": sid, "width": v.size, "height": v.size, "attempts": attempt,
                 "camera": {**cam.to_dict(), "centre": scene.centre,
@@ -363,9 +362,7 @@ class Generate2DViews(_Stage):
                 "lesions": lesions,
                 "nevi": [{"id": k, "box": b} for k, b in layers.get("nevi_boxes", {}).items()],
                 "background": {"index": bg_index, "source": cfg.backgrounds.source, "blur": blur},
-                "fractions": {name: float((layers["semantic"] == code).sum() / n) for name, code in
-                              (("skin", V.SEMANTIC_SKIN), ("lesion", V.SEMANTIC_LESION),
-                               ("nonskin", V.SEMANTIC_NONSKIN))},
+                "fractions": layers["fractions"],
                 "box_convention": "[x0, y0, x1, y1] pixels, x1/y1 exclusive"}
         out, outputs = self.out, cfg.outputs
 

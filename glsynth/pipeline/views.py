@@ -137,20 +137,25 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
                           vertex_labels=parts, buffers=buffers_for(outputs, [*labels, *parts]))
     if scene.point is not None and not _centre_is(out["depth"], scene.camera, scene.point):
         raise ViewRejected("camera inside the mesh or the point is hidden")
+    # masks and counts in place on uint8/uint16 (this runs on the render thread)
     body_px = out["face_id"] >= 0
     lesion = body_px & (out["instances"] > 0)
     nonskin = body_px & (out["nonskin"] > 0) & ~lesion
-    skin = body_px & ~lesion & ~nonskin
     n = body_px.size
-    if skin.sum() / n < v.min_skin:
-        raise ViewRejected(f"skin {skin.sum() / n:.3f} < views.min_skin {v.min_skin}")
-    if lesion.sum() / n < v.min_lesion:
-        raise ViewRejected(f"lesion {lesion.sum() / n:.3f} < views.min_lesion {v.min_lesion}")
-    semantic = np.select([lesion, nonskin, skin], [SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN],
-                         SEMANTIC_BACKGROUND).astype(np.uint8)
-    inst = np.where(lesion, out["instances"], 0).astype(np.uint16)
+    counts = {"lesion": np.count_nonzero(lesion), "nonskin": np.count_nonzero(nonskin)}
+    counts["skin"] = np.count_nonzero(body_px) - counts["lesion"] - counts["nonskin"]
+    fractions = {name: float(c / n) for name, c in counts.items()}
+    if fractions["skin"] < v.min_skin:
+        raise ViewRejected(f"skin {fractions['skin']:.3f} < views.min_skin {v.min_skin}")
+    if fractions["lesion"] < v.min_lesion:
+        raise ViewRejected(f"lesion {fractions['lesion']:.3f} < views.min_lesion {v.min_lesion}")
+    semantic = body_px.view(np.uint8) * np.uint8(SEMANTIC_SKIN)
+    np.putmask(semantic, nonskin, SEMANTIC_NONSKIN)
+    np.putmask(semantic, lesion, SEMANTIC_LESION)
+    inst = out["instances"].astype(np.uint16)  # a copy
+    np.putmask(inst, ~lesion, 0)
     layers = {"semantic": semantic, "instances": inst, "depth": out["depth"].astype(np.float32),
-              "boxes": instance_boxes(inst)}
+              "regions": instance_regions(inst), "fractions": fractions}
     if "rgb" in outputs:
         shaded = renderer.render(mesh_b, scene.camera, passes=("rgb",), lights=scene.lights,
                                  material=scene.material, supersample=v.supersample,
@@ -165,7 +170,9 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     if "normals" in outputs:
         layers["normals"] = camera_normals(out, body.mesh, scene.camera)
     if nevi_map is not None:
-        layers["nevi_boxes"] = instance_boxes(np.where(body_px & ~lesion, out["nevi"], 0))
+        nevi = out["nevi"].astype(np.uint16)
+        np.putmask(nevi, ~body_px | lesion, 0)
+        layers["nevi_boxes"] = {k: r["box"] for k, r in instance_regions(nevi).items()}
     return layers
 
 
@@ -184,17 +191,22 @@ def camera_normals(out, mesh, camera) -> np.ndarray:
     return n.astype(np.float32)
 
 
-def instance_boxes(inst) -> dict:
-    """{id: [x0, y0, x1, y1]} minimal enclosing boxes; x1/y1 exclusive (pixels)."""
-    boxes = {}
-    present = np.flatnonzero(np.bincount(inst.ravel())) if inst.size else []
-    for k in present:
-        if k == 0:
-            continue
-        mask = inst == k
+def instance_regions(inst) -> dict:
+    """{id: {"box": [x0, y0, x1, y1], "area": pixels}} of each non-zero id: minimal
+    enclosing boxes, x1/y1 exclusive. Works on the rows and columns that hold ids."""
+    rows, cols = np.flatnonzero(inst.any(1)), np.flatnonzero(inst.any(0))
+    if not len(rows):
+        return {}
+    y0, x0 = int(rows[0]), int(cols[0])
+    sub = inst[y0:rows[-1] + 1, x0:cols[-1] + 1]
+    areas = np.bincount(sub.ravel())
+    regions = {}
+    for k in np.flatnonzero(areas[1:]) + 1:
+        mask = sub == k
         ys, xs = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
-        boxes[int(k)] = [int(xs[0]), int(ys[0]), int(xs[-1]) + 1, int(ys[-1]) + 1]
-    return boxes
+        regions[int(k)] = {"box": [x0 + int(xs[0]), y0 + int(ys[0]), x0 + int(xs[-1]) + 1,
+                                   y0 + int(ys[-1]) + 1], "area": int(areas[k])}
+    return regions
 
 
 def nevi_label_map(body):
