@@ -75,8 +75,7 @@ class _MeshOnGPU:
         corners = mesh.vertices[mesh.faces]
         face = np.concatenate([corners.reshape(n, 9), mesh.vertex_normals[mesh.faces].reshape(n, 9),
                                uv.reshape(n, 6)], axis=1).astype(np.float32)
-        mesh.distance_to(mesh.vertices[0])  # fills the mesh's cached per-face edge lengths
-        _ = mesh.bounds, mesh.closed_orientation
+        _ = mesh.bounds, mesh.closed_orientation, mesh._face_longest_edge  # for clip planes
         # Half floats: llvmpipe filters 8-bit textures with 8-bit weights (up to ~2/255
         # off the torch path); float textures are filtered in float.
         texels = None if mesh.texture is None else _half_float_texels(mesh.texture)
@@ -200,11 +199,10 @@ class Renderer:
 
     def _setup(self):
         self.ctx.depth_clamp_range = (0.0, 1.0)  # enables GL_DEPTH_CLAMP (see Camera.clip_planes)
-        vert = shader_source("mesh.vert")
-        self.programs = {
-            name: self.ctx.program(vertex_shader=vert, fragment_shader=frag)
-            for name, frag in (("gbuffer", shader_source("gbuffer.frag")),
-                               ("labels", shader_source("labels.frag")))}
+        # G-buffer programs (with or without labels, barycentrics and UV) and shading
+        # programs (per light count) are compiled on first use: _gbuffer_program, _phong
+        self.programs = {"labels": self.ctx.program(vertex_shader=shader_source("mesh.vert"),
+                                                    fragment_shader=shader_source("labels.frag"))}
         self.programs["uvspace"] = self.ctx.program(
             vertex_shader=shader_source("uvspace.vert"), fragment_shader=shader_source("gbuffer.frag"))
         self.programs["shadow"] = self.ctx.program(vertex_shader=shader_source("shadow.vert"),
@@ -451,7 +449,7 @@ class Renderer:
         m = proj @ view  # world -> clip; a side plane is w +- x >= 0 or w +- y >= 0
         planes = np.stack([m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1]])
         return {"u_view": view.T.astype("f4").tobytes(), "u_proj": proj.T.astype("f4").tobytes(),
-                "frustum": planes}
+                "viewproj": m, "frustum": planes}
 
     SHADOW_SIZE = 1024
 
@@ -477,9 +475,7 @@ class Renderer:
         fbo = self._fbo("shadow", n, n)
         self._draw(gpu, "shadow", fbo, mats)
         fbo.depth_attachment.use(1)
-        near, far = gpu.clip_planes(mesh, light_cam)
-        viewproj = light_cam.projection_matrix(near, far) @ light_cam.view_matrix()
-        prog["u_light_viewproj"].write(viewproj.T.astype("f4").tobytes())
+        prog["u_light_viewproj"].write(mats["viewproj"].T.astype("f4").tobytes())
         prog["u_shadow_texel"].value = 2 * np.tan(np.radians(light_cam.fov_deg) / 2) / n
 
     @staticmethod

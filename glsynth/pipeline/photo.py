@@ -230,10 +230,6 @@ def vignetting_gain(shape, strength):
     return 1 - np.float32(strength) * rho2
 
 
-def vignetting(lin, strength):
-    return lin * vignetting_gain(lin.shape, strength)[..., None]
-
-
 def add_noise(lin, shot, read, seed):
     """Shot + read noise in linear units: ``x + sqrt(shot * x + read^2) * N(0, 1)``,
     clipped to [0, 1]. The normals come from OpenCV's generator seeded with ``seed``
