@@ -197,3 +197,31 @@ def test_depth_tiff_is_lossless_and_readable_by_opencv(tmp_path):
     write_depth(path, depth)
     np.testing.assert_array_equal(tifffile.imread(path), depth)
     np.testing.assert_array_equal(read_image(path), depth)  # libtiff inside OpenCV
+
+
+def test_generate_releases_its_gl_context(tmp_path, monkeypatch):
+    """A process that calls generate repeatedly (API users, benchmarks) must not keep
+    every run's GL context: llvmpipe holds ~0.2 GB of textures per body in each. Also
+    when the run fails."""
+    from glsynth.gl.renderer import Renderer
+    made, closed = [], []
+    init, close = Renderer.__init__, Renderer.close
+
+    def spy_init(self, *a, **k):
+        init(self, *a, **k)
+        made.append(self)
+
+    def spy_close(self):
+        close(self)
+        closed.append(self)
+
+    monkeypatch.setattr(Renderer, "__init__", spy_init)
+    monkeypatch.setattr(Renderer, "close", spy_close)
+    gs.pipeline.generate(small_config("blend.method=paste", "views.per_body=1"), tmp_path / "a")
+    assert made and closed == made
+    from glsynth.pipeline import stages
+    monkeypatch.setattr(stages.Generate2DViews, "synthesize_views",
+                        lambda self, *a, **k: (_ for _ in ()).throw(RuntimeError("boom")))
+    with pytest.raises(RuntimeError, match="boom"):
+        gs.pipeline.generate(small_config("blend.method=paste", "views.per_body=1"), tmp_path / "b")
+    assert len(made) == 2 and closed == made

@@ -557,3 +557,22 @@ def test_frustum_culling_changes_no_pixel(renderer, rng, w, shape):
             gpu = renderer._gpu_mesh(mesh)
             drawn = sum(n for _, n in gpu.visible_ranges(renderer._matrices(gpu, mesh, close)["frustum"]))
         assert 0 < drawn < 0.2 * gpu.count  # 14%: the rows of faces through the view
+
+
+def test_close_releases_an_owned_context_only(gl_backend, rng):
+    import moderngl
+    r = gs.Renderer(16, 16, backend=gl_backend)
+    mesh = box(rng)
+    cam = gs.Camera.look_at((0, 0, 3), (0, 0, 0), width=16, height=16)
+    r.render(mesh, cam, passes=("gbuffer",))
+    with r:  # the context manager closes it
+        pass
+    assert isinstance(r.ctx.mglo, moderngl.InvalidObject)  # moderngl's mark of a released object
+    # a renderer on a context it was given leaves that context usable
+    owner = gs.Renderer(16, 16, backend=gl_backend)
+    guest = gs.Renderer(16, 16, ctx=owner.ctx)
+    guest.render(mesh, cam, passes=("gbuffer",))
+    guest.close()
+    assert not isinstance(owner.ctx.mglo, moderngl.InvalidObject)
+    assert (owner.render(mesh, cam, passes=("gbuffer",))["face_id"] >= 0).any()
+    owner.close()

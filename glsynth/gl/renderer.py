@@ -117,7 +117,7 @@ class _MeshOnGPU:
         self.chunks = staged["chunks"]
         self.vaos = {}
         self._corner_labels = {}  # id(vertex label array) -> (array, texture)
-        self._clip_planes = {}    # (eye, target) -> (near, far)
+        self._clip_planes = {}    # eye -> (near, far)
         self.texture = None
         if mesh.texture is not None:
             h, w = mesh.texture.shape[:2]
@@ -136,11 +136,12 @@ class _MeshOnGPU:
 
     def clip_planes(self, mesh: Mesh, camera: Camera) -> tuple:
         """``camera``'s near/far planes for this mesh (``Camera.clip_planes``), kept for
-        the last few eye/target pairs: a view's passes, crops and shadow map share them
-        (each measures the distance from the eye to the surface)."""
+        the last few eye positions: they depend on the eye alone, and a view's passes
+        and crops, its light probe and its shadow map share eyes (each new eye measures
+        its distance to the surface, ~0.7 ms on a 27k-face body)."""
         if camera.near is not None and camera.far is not None:
             return camera.near, camera.far
-        key = (camera.eye, camera.target)
+        key = tuple(camera.eye)
         planes = self._clip_planes.get(key)
         if planes is None:
             if len(self._clip_planes) >= 8:
@@ -193,6 +194,7 @@ class Renderer:
         if int(width) < 1 or int(height) < 1:
             raise ValueError(f"render size must be positive, got {width}x{height}")
         self.width, self.height = int(width), int(height)
+        self._owns_ctx = ctx is None and backend != "window"
         self.ctx = ctx or create_context(backend)
         with self.ctx:  # a shared context need not be current on this thread
             self._setup()
@@ -243,7 +245,8 @@ class Renderer:
         name = f"rgb{n_lights}{'s' if shadows else ''}"
         if name not in self.programs:
             frag = with_defines(shader_source("phong.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows)
-            prog = self.ctx.program(vertex_shader=shader_source("mesh.vert"), fragment_shader=frag)
+            vert = with_defines(shader_source("mesh.vert"), SHADOWS=shadows)
+            prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
             if shadows:
                 prog["u_shadow_map"] = 1
             self.programs[name] = prog
@@ -476,6 +479,7 @@ class Renderer:
         self._draw(gpu, "shadow", fbo, mats)
         fbo.depth_attachment.use(1)
         prog["u_light_viewproj"].write(mats["viewproj"].T.astype("f4").tobytes())
+        prog["u_shadow_light"].value = tuple(light.position)
         prog["u_shadow_texel"].value = 2 * np.tan(np.radians(light_cam.fov_deg) / 2) / n
 
     @staticmethod
@@ -688,6 +692,22 @@ class Renderer:
         for fbo in self._fbos.values():
             self._release_fbo(fbo)
         self._fbos.clear()
+
+    def close(self):
+        """Release every GL object and, when this renderer made its own context, the
+        context (llvmpipe keeps a context's textures and framebuffers, ~0.2 GB per
+        built-in body, until then). The renderer is unusable afterwards."""
+        with self.ctx:
+            self.release()
+        if self._owns_ctx:
+            self.ctx.release()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
 
     def draw_rgb(self, mesh: Mesh, camera: Camera, lights=None, material=None, dtype="f4"):
         """Draw the shading pass of ``render(mesh, camera, passes=("rgb",), lights=...,

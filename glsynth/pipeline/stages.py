@@ -176,23 +176,27 @@ class Generate2DViews(_Stage):
             self._backgrounds = background_source(self.cfg)
         # Python's cyclic collector kept walking every object torch, the modules and the
         # loaded assets hold (~4% of a run's CPU in perf); frozen, it scans only what the
-        # views themselves allocate.
+        # views themselves allocate. Unfrozen at the end, so that what this run leaves
+        # behind can be collected.
         gc.freeze()
-        # Compositing, the camera model and encoding run in background threads while the
-        # next view renders (OpenCV, zlib and numpy release the GIL).
-        with SampleWriter(threads=self.writer_threads) as writer:
-            try:
-                for t, (body_id, j) in enumerate(todo):
-                    self._prefetch(todo[t:t + self.prefetch_views])
-                    state = self._body_state(body_id)
-                    t0 = time.perf_counter()
-                    finish = self._one_view(self.renderer, body_id, *state, j, rejected)
-                    if finish is not None:
-                        writer.submit(finish)
-                    self._time("views", time.perf_counter() - t0)
-                    bar.update(1)
-            finally:
-                self._stop_prefetch()
+        try:
+            # Compositing, the camera model and encoding run in background threads while the
+            # next view renders (OpenCV, zlib and numpy release the GIL).
+            with SampleWriter(threads=self.writer_threads) as writer:
+                try:
+                    for t, (body_id, j) in enumerate(todo):
+                        self._prefetch(todo[t:t + self.prefetch_views])
+                        state = self._body_state(body_id)
+                        t0 = time.perf_counter()
+                        finish = self._one_view(self.renderer, body_id, *state, j, rejected)
+                        if finish is not None:
+                            writer.submit(finish)
+                        self._time("views", time.perf_counter() - t0)
+                        bar.update(1)
+                finally:
+                    self._stop_prefetch()
+        finally:
+            gc.unfreeze()
         bar.close()
         if rejected:
             log.info("rejected views: %s", ", ".join(f"{n}x {r}" for r, n in sorted(rejected.items())))
@@ -437,6 +441,9 @@ class _Worker:
                 run()
         return self._report()
 
+    def close(self):
+        self.views.renderer.close()
+
     def render(self, tasks, progress=False):
         rejected = self.views.synthesize_views(tasks, progress=progress)
         return {**self._report(), "rejected": rejected, "done": len(tasks)}
@@ -523,9 +530,12 @@ def generate(cfg: Config, out, resume=False, workers=1, executor="local", addres
         reports = run_ray(cfg, out, ids, chunks, workers, address)
     elif workers == 1:
         worker = _Worker(cfg, out)
-        reports += [worker.prepare(b) for b in tqdm(ids, desc="paste + blend", unit="body")]
-        # one call for all views: the stage then loads each next body while rendering
-        reports.append(worker.render(tasks, progress=True))
+        try:
+            reports += [worker.prepare(b) for b in tqdm(ids, desc="paste + blend", unit="body")]
+            # one call for all views: the stage then loads each next body while rendering
+            reports.append(worker.render(tasks, progress=True))
+        finally:  # a process that calls generate again must not keep this run's GL memory
+            worker.close()
     else:
         import multiprocessing as mp
         ctx = mp.get_context("spawn")  # GL contexts do not survive fork
