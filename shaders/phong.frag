@@ -31,8 +31,6 @@ uniform float u_shininess;
 uniform float u_wrap;   // Material.wrap (0: Lambert)
 #if SHADOWS
 uniform sampler2DShadow u_shadow_map;  // depth buffer seen from light 0 (compare <=)
-uniform mat4 u_light_viewproj;
-uniform float u_shadow_texel;  // shadow-map texel width per unit distance from the light
 #endif
 
 #include "surface.glsl"
@@ -40,17 +38,10 @@ uniform float u_shadow_texel;  // shadow-map texel width per unit distance from 
 out vec4 out_color;
 
 #if SHADOWS
-float main_light_visibility(vec3 world, vec3 n) {
-    // Normal-offset lookup plus a bias towards the light, both a couple of shadow texels
-    // wide at this distance: without them surfaces shadow themselves in stripes ("acne").
-    vec3 to_light = u_light_pos[0] - world;
-    float dist = length(to_light);
-    float texel_here = u_shadow_texel * dist;
-    float cos_t = clamp(abs(dot(n, to_light / dist)), 0.1, 1.0);
-    float slope = sqrt(1.0 - cos_t * cos_t) / cos_t;  // the filter reaches 2 texels
-    float bias = texel_here * (1.5 + 2.5 * slope);
-    vec3 p = world + n * 1.5 * texel_here + to_light / dist * bias;
-    vec4 clip = u_light_viewproj * vec4(p, 1.0);
+flat in mat3x4 g_shadow_clip;  // per corner, from mesh.vert
+
+float main_light_visibility(vec3 b) {
+    vec4 clip = g_shadow_clip * b;
     if (clip.w <= 0.0) return 1.0;
     vec3 at = clip.xyz / clip.w * 0.5 + 0.5;
     if (any(lessThan(at.xy, vec2(0.0))) || any(greaterThan(at.xy, vec2(1.0)))) return 1.0;
@@ -82,7 +73,7 @@ void main() {
         vec3 l = to_light / max(length(to_light), 1e-20);
         float cos_nl = dot(n, l);
 #if SHADOWS
-        float vis = i == 0 ? main_light_visibility(world, n) : 1.0;
+        float vis = i == 0 ? main_light_visibility(b) : 1.0;
 #else
         const float vis = 1.0;
 #endif
