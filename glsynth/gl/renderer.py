@@ -18,7 +18,7 @@ from ..camera import Camera
 from ..lighting import Material, PointLight, check_lights
 from ..mesh import Mesh
 from ..resources import shader_source, with_defines
-from .context import create_context
+from .context import create_context, default_backend
 
 log = logging.getLogger(__name__)
 
@@ -194,7 +194,8 @@ class Renderer:
         if int(width) < 1 or int(height) < 1:
             raise ValueError(f"render size must be positive, got {width}x{height}")
         self.width, self.height = int(width), int(height)
-        self._owns_ctx = ctx is None and backend != "window"
+        backend = (backend or default_backend()).lower()
+        self._owns_ctx = ctx is None and backend != "window"  # 'window' attaches to another's
         self.ctx = ctx or create_context(backend)
         with self.ctx:  # a shared context need not be current on this thread
             self._setup()
@@ -694,11 +695,15 @@ class Renderer:
         self._fbos.clear()
 
     def close(self):
-        """Release every GL object and, when this renderer made its own context, the
-        context (llvmpipe keeps a context's textures and framebuffers, ~0.2 GB per
-        built-in body, until then). The renderer is unusable afterwards."""
+        """Release every GL object this renderer made (``release`` and its programs)
+        and, when it made its own context, the context (llvmpipe keeps a context's
+        textures and framebuffers, ~0.2 GB per built-in body, until then). The
+        renderer is unusable afterwards."""
         with self.ctx:
             self.release()
+            for obj in [self._empty_vao, self._downsample, *self.programs.values()]:
+                obj.release()
+            self.programs.clear()
         if self._owns_ctx:
             self.ctx.release()
 

@@ -180,22 +180,20 @@ class Generate2DViews(_Stage):
         # behind can be collected.
         gc.freeze()
         try:
-            # Compositing, the camera model and encoding run in background threads while the
-            # next view renders (OpenCV, zlib and numpy release the GIL).
+            # Compositing, the camera model and encoding run in background threads while
+            # the next view renders (OpenCV, zlib and numpy release the GIL).
             with SampleWriter(threads=self.writer_threads) as writer:
-                try:
-                    for t, (body_id, j) in enumerate(todo):
-                        self._prefetch(todo[t:t + self.prefetch_views])
-                        state = self._body_state(body_id)
-                        t0 = time.perf_counter()
-                        finish = self._one_view(self.renderer, body_id, *state, j, rejected)
-                        if finish is not None:
-                            writer.submit(finish)
-                        self._time("views", time.perf_counter() - t0)
-                        bar.update(1)
-                finally:
-                    self._stop_prefetch()
+                for t, (body_id, j) in enumerate(todo):
+                    self._prefetch(todo[t:t + self.prefetch_views])
+                    state = self._body_state(body_id)
+                    t0 = time.perf_counter()
+                    finish = self._one_view(self.renderer, body_id, *state, j, rejected)
+                    if finish is not None:
+                        writer.submit(finish)
+                    self._time("views", time.perf_counter() - t0)
+                    bar.update(1)
         finally:
+            self._stop_prefetch()
             gc.unfreeze()
         bar.close()
         if rejected:
