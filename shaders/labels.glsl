@@ -1,15 +1,22 @@
 // Integer labels, no lighting, no filtering, so ids (up to 65535) come back exactly.
-// Each of the four slots holds either a label texture in UV space (sampled at the
-// nearest texel) or, where u_per_corner is 1, per-face-corner labels (vertex labels
-// laid out as face * 3 + corner in a 2D texture), giving each pixel the label of its
-// face's corner with the largest barycentric weight (ties: the first, as numpy's argmax).
+// Slots 0 .. LABEL_MAPS-1 each hold a label map: a texture in UV space (sampled at the
+// nearest texel) for slots below LABEL_CORNERS_FROM, per-face-corner labels (vertex
+// labels laid out as face * 3 + corner in a 2D texture) from there on, giving each
+// pixel the label of its face's corner with the largest barycentric weight (ties: the
+// first, as numpy's argmax). The layout is compiled in (the renderer keeps one program
+// per layout): llvmpipe evaluates both sides of a branch on a uniform, so a layout
+// chosen at run time fetched every slot both ways.
 // Included by labels.frag and, with LABELS, by gbuffer.frag (one draw for both).
+#ifndef LABEL_MAPS
+#define LABEL_MAPS 1
+#endif
+#ifndef LABEL_CORNERS_FROM
+#define LABEL_CORNERS_FROM LABEL_MAPS
+#endif
 uniform usampler2D u_labels0;
 uniform usampler2D u_labels1;
 uniform usampler2D u_labels2;
 uniform usampler2D u_labels3;
-uniform int u_count;
-uniform ivec4 u_per_corner;
 
 uint fetch(usampler2D tex, bool per_corner, vec2 uv, int face, vec3 b) {
     ivec2 size = textureSize(tex, 0);
@@ -24,8 +31,16 @@ uint fetch(usampler2D tex, bool per_corner, vec2 uv, int face, vec3 b) {
 }
 
 uvec4 fetch_labels(vec2 uv, int face, vec3 b) {
-    return uvec4(fetch(u_labels0, u_per_corner.x == 1, uv, face, b),
-                 u_count > 1 ? fetch(u_labels1, u_per_corner.y == 1, uv, face, b) : 0u,
-                 u_count > 2 ? fetch(u_labels2, u_per_corner.z == 1, uv, face, b) : 0u,
-                 u_count > 3 ? fetch(u_labels3, u_per_corner.w == 1, uv, face, b) : 0u);
+    uvec4 labels = uvec4(0u);
+    labels.x = fetch(u_labels0, 0 >= LABEL_CORNERS_FROM, uv, face, b);
+#if LABEL_MAPS > 1
+    labels.y = fetch(u_labels1, 1 >= LABEL_CORNERS_FROM, uv, face, b);
+#endif
+#if LABEL_MAPS > 2
+    labels.z = fetch(u_labels2, 2 >= LABEL_CORNERS_FROM, uv, face, b);
+#endif
+#if LABEL_MAPS > 3
+    labels.w = fetch(u_labels3, 3 >= LABEL_CORNERS_FROM, uv, face, b);
+#endif
+    return labels;
 }

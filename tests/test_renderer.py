@@ -292,6 +292,32 @@ def test_vertex_labels_in_the_label_pass_equal_the_numpy_lookup(renderer, rng, t
         renderer.render(mesh, cam, passes=("labels",), vertex_labels={"part": vertex_labels[:-1]})
 
 
+
+
+def test_every_label_layout_in_one_renderer(renderer, rng):
+    """Programs are compiled per layout (number of maps, how many per vertex): every
+    layout, drawn in random order through one renderer, gives each map its own labels."""
+    mesh = sphere(rng, subdivisions=2)
+    d = rng.normal(size=3)
+    cam = gs.Camera.look_at(d / np.linalg.norm(d) * 1.8, (0, 0, 0), width=renderer.width,
+                            height=renderer.height)
+    gbuf = renderer.render(mesh, cam, passes=("gbuffer",))
+    maps = [rng.integers(0, 65536, size=(23, 29)).astype(np.uint16) for _ in range(4)]
+    per_vertex = [rng.integers(0, 65536, size=len(mesh.vertices)) for _ in range(4)]
+    expected_uv = [renderer.render(mesh, cam, passes=("labels",), label_texture=m)["labels"] for m in maps]
+    layouts = [(n, k) for n in range(1, 5) for k in range(n + 1)]
+    for i in rng.permutation(len(layouts)):
+        n, k = layouts[i]  # n maps, the last k of them per vertex
+        textures = {f"t{j}": maps[j] for j in range(n - k)}
+        vertex = {f"v{j}": per_vertex[j] for j in range(k)}
+        for passes in (("labels",), ("gbuffer", "labels")):
+            out = renderer.render(mesh, cam, passes=passes, label_textures=textures or None,
+                                  vertex_labels=vertex or None)
+            for j in range(n - k):
+                np.testing.assert_array_equal(out[f"t{j}"], expected_uv[j], err_msg=f"layout {n, k}")
+            for j in range(k):
+                np.testing.assert_array_equal(out[f"v{j}"], vertex_label_image(gbuf, mesh, per_vertex[j]),
+                                              err_msg=f"layout {n, k}")
 def test_supersampled_rgb_and_alpha(renderer, rng):
     mesh = sphere(rng)
     cam = gs.Camera.look_at((0, 0, 1.2), (0, 0, 0), width=renderer.width, height=renderer.height)

@@ -202,10 +202,10 @@ class Renderer:
 
     def _setup(self):
         self.ctx.depth_clamp_range = (0.0, 1.0)  # enables GL_DEPTH_CLAMP (see Camera.clip_planes)
-        # G-buffer programs (with or without labels, barycentrics and UV) and shading
-        # programs (per light count) are compiled on first use: _gbuffer_program, _phong
-        self.programs = {"labels": self.ctx.program(vertex_shader=shader_source("mesh.vert"),
-                                                    fragment_shader=shader_source("labels.frag"))}
+        # G-buffer and label programs (with or without labels, barycentrics and UV; per
+        # label layout) and shading programs (per light count) are compiled on first
+        # use: _gbuffer_program, _phong
+        self.programs = {}
         self.programs["uvspace"] = self.ctx.program(
             vertex_shader=shader_source("uvspace.vert"), fragment_shader=shader_source("gbuffer.frag"))
         self.programs["shadow"] = self.ctx.program(vertex_shader=shader_source("shadow.vert"),
@@ -217,12 +217,6 @@ class Renderer:
         self._staged = {}      # id(mesh) -> (weakref(mesh), _MeshOnGPU.staged(mesh))
         self._label_tex = {}   # id(array) -> (array, texture)
         self._fbos = {}
-        self._label_samplers(self.programs["labels"])
-
-    @staticmethod
-    def _label_samplers(prog):
-        for i in range(MAX_LABEL_MAPS):  # units 0, 1: colour, shadow map
-            prog[f"u_labels{i}"] = i + 2
 
     @staticmethod
     def _gbuffer_kind(labels: bool, bary_uv: bool) -> str:
@@ -230,15 +224,25 @@ class Renderer:
         with the barycentric and UV targets or without (``-lean``)."""
         return f"gbuffer{'+labels' if labels else ''}{'' if bary_uv else '-lean'}"
 
-    def _gbuffer_program(self, kind: str):
-        if kind not in self.programs:
-            frag = with_defines(shader_source("gbuffer.frag"), LABELS=int("+labels" in kind),
-                                BARY_UV=int(not kind.endswith("-lean")))
-            self.programs[kind] = self.ctx.program(vertex_shader=shader_source("mesh.vert"),
-                                                   fragment_shader=frag)
-            if "+labels" in kind:
-                self._label_samplers(self.programs[kind])
-        return self.programs[kind]
+    def _gbuffer_program(self, kind: str, label_layout=None) -> str:
+        """Name of the program for a draw of ``kind`` (a G-buffer kind, or 'labels' for
+        the labels alone) with ``label_layout`` = (maps, first per-corner slot) from
+        ``_bind_labels`` (see labels.glsl), compiled on first use."""
+        name = kind if label_layout is None else f"{kind}:{label_layout[0]}/{label_layout[1]}"
+        if name not in self.programs:
+            layout = {} if label_layout is None else dict(zip(("LABEL_MAPS", "LABEL_CORNERS_FROM"),
+                                                              label_layout))
+            if kind == "labels":
+                frag = with_defines(shader_source("labels.frag"), **layout)
+            else:
+                frag = with_defines(shader_source("gbuffer.frag"), LABELS=int("+labels" in kind),
+                                    BARY_UV=int(not kind.endswith("-lean")), **layout)
+            prog = self.ctx.program(vertex_shader=shader_source("mesh.vert"), fragment_shader=frag)
+            for i in range(MAX_LABEL_MAPS):  # units 0, 1: colour, shadow map
+                if f"u_labels{i}" in prog:
+                    prog[f"u_labels{i}"] = i + 2
+            self.programs[name] = prog
+        return name
 
     def _phong(self, n_lights: int, shadows: bool) -> str:
         """Name of the shading program for this light count and shadow setting, compiled
@@ -421,18 +425,18 @@ class Renderer:
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.BLEND)
-        labels = None
+        labels = layout = None
         if "labels" in passes:
-            labels = self._bind_labels(gpu, mesh, label_texture, label_textures, vertex_labels)
+            labels, layout = self._bind_labels(gpu, mesh, label_texture, label_textures, vertex_labels)
         if want is not None:
             known = set(GBUFFER_LAYERS) | {"rgb", "alpha", "rgba8"} | set(labels or ())
             if want - known:
                 raise ValueError(f"unknown buffer(s) {sorted(want - known)}; these passes make "
                                  f"{sorted(known)}")
         if "gbuffer" in passes:  # with the labels in the same draw when both are asked for
-            out.update(self._render_gbuffer(gpu, mats, size, labels, want))
+            out.update(self._render_gbuffer(gpu, mats, size, labels, layout, want))
         elif labels is not None:
-            out.update(self._render_labels(gpu, mats, labels, size))
+            out.update(self._render_labels(gpu, mats, labels, layout, size))
         if "rgb" in passes:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
@@ -515,14 +519,13 @@ class Renderer:
         raw = self._read(fbo, attachment, 4, "u2", np.uint16, flip=False)
         return {name: np.ascontiguousarray(raw[::-1, :, i]) for i, name in names}
 
-    def _render_gbuffer(self, gpu, mats, size, labels=None, want=None):
+    def _render_gbuffer(self, gpu, mats, size, labels=None, label_layout=None, want=None):
         bary_uv = want is None or bool({"bary", "uv"} & want)
         kind = self._gbuffer_kind(labels is not None, bary_uv)
-        self._gbuffer_program(kind)
         fbo = self._fbo(kind, *size)
         # moderngl clears every attachment with the same value, so the shader writes
         # face id + 1 over a cleared 0; background depth is set to -1 from the face ids.
-        self._draw(gpu, kind, fbo, mats)
+        self._draw(gpu, self._gbuffer_program(kind, label_layout), fbo, mats)
         face = self._read(fbo, 0, 1, "i4", np.int32)
         face -= 1
         out = {"face_id": face}
@@ -571,8 +574,9 @@ class Renderer:
         rgba = self._read(fbo, 0, 4, "f4", np.float32, flip=False)  # flipped by the split
         return {"rgb": np.ascontiguousarray(rgba[::-1, :, :3]), "alpha": np.ascontiguousarray(rgba[::-1, :, 3])}
 
-    def _bind_labels(self, gpu, mesh, label_texture, label_textures, vertex_labels) -> list:
-        """Upload (once) and bind the label maps of a render; returns their names."""
+    def _bind_labels(self, gpu, mesh, label_texture, label_textures, vertex_labels) -> tuple:
+        """Upload (once) and bind the label maps of a render; returns their names and
+        layout (number of maps, first per-vertex slot: those come last)."""
         if label_textures is None and label_texture is not None:
             label_textures = {"labels": label_texture}
         elif label_texture is not None:
@@ -588,13 +592,11 @@ class Renderer:
         textures += [gpu.corner_labels(np.asarray(arr), mesh) for _, arr in per_vertex]
         for i in range(MAX_LABEL_MAPS):  # unused samplers still need a valid texture
             textures[min(i, len(textures) - 1)].use(i + 2)  # units 0, 1: colour, shadow map
-        per_corner = [0] * len(items) + [1] * len(per_vertex)
-        self._label_layout = (len(textures), tuple(per_corner + [0] * (MAX_LABEL_MAPS - len(per_corner))))
-        return [name for name, _ in items + per_vertex]
+        return [name for name, _ in items + per_vertex], (len(textures), len(items))
 
-    def _render_labels(self, gpu, mats, names, size):
+    def _render_labels(self, gpu, mats, names, label_layout, size):
         fbo = self._fbo("labels", *size)
-        self._draw(gpu, "labels", fbo, mats)
+        self._draw(gpu, self._gbuffer_program("labels", label_layout), fbo, mats)
         return self._read_labels(fbo, 0, names)
 
     def _draw(self, gpu, prog_name, fbo, mats, clear=(0.0, 0.0, 0.0, 0.0), cull=True):
@@ -608,8 +610,6 @@ class Renderer:
         for k, v in mats.items():
             if k.startswith("u_"):
                 prog[k].write(v)
-        if "u_count" in prog:  # a label program: the maps _bind_labels bound
-            prog["u_count"].value, prog["u_per_corner"].value = self._label_layout
         fbo.use()
         fbo.viewport = (0, 0, *fbo.size)
         fbo.clear(*clear, depth=1.0)
