@@ -316,7 +316,8 @@ class Generate2DViews(_Stage):
             tint = V.ambient_tint_from(background, v.ambient_tint)
         for attempt in range(1, v.attempts + 1):
             try:
-                scene = V.sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=tint)
+                scene = V.sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=tint,
+                                       drawn=mesh_b)
                 layers = V.render_view(renderer, body, mesh_b, instances, nevi_map, scene, v,
                                        cfg.outputs)
                 break

@@ -39,13 +39,16 @@ class ViewRejected(Exception):
     pass
 
 
-def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None) -> ViewScene:
+def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None, drawn=None) -> ViewScene:
     """One camera + light(s) + material; raises ViewRejected when the light is blocked
     (whether the camera sees its point is checked on the view's own G-buffer by
     ``render_view``, which saves a draw per view). ``ambient_tint`` (RGB gains, see
     ``ambient_tint_from``) colours the room light's ambient term. Wrap lighting and the
     flash draw random numbers only when the config turns them on, so configs without
-    them give the same scenes as before."""
+    them give the same scenes as before. ``drawn``: the mesh the views render (the
+    body's geometry with the blended texture; default ``body.mesh``), which the light
+    probe draws too: one upload per body, and the probe's near and far planes are the
+    shadow map's (the renderer caches them per mesh and eye)."""
     mesh = body.mesh
     if lesion_points and rng.random() < v.lesion_bias:
         k = int(rng.integers(len(lesion_points)))
@@ -68,7 +71,7 @@ def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None) -> Vi
     direction /= np.linalg.norm(direction)
     light_pos = np.asarray(cam.eye) + direction * rng.uniform(*v.light_offset)
     if np.linalg.norm(light_pos - point) < 1e-6 or not _sees_point(
-            renderer, mesh, Camera.look_at(light_pos, point, fov_deg=5.0, width=16, height=16), point):
+            renderer, mesh if drawn is None else drawn, Camera.look_at(light_pos, point, fov_deg=5.0, width=16, height=16), point):
         raise ViewRejected("light blocked by the body")
     # One intensity per term for R, G and B alike: independent channels would tint the
     # skin green or purple, which no clinical photo shows.
