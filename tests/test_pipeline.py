@@ -199,6 +199,24 @@ def test_depth_tiff_is_lossless_and_readable_by_opencv(tmp_path):
     np.testing.assert_array_equal(read_image(path), depth)  # libtiff inside OpenCV
 
 
+
+def test_composite_is_the_rounded_premultiplied_over():
+    """Body over background in uint8 equals the float formula rounded, on fresh
+    random coverage (0 and 255 included) and premultiplied colours."""
+    from glsynth.pipeline.views import composite
+    rng = np.random.default_rng()
+    for _ in range(10):
+        h, w = rng.integers(1, 200, 2)
+        alpha = rng.integers(0, 256, (h, w)).astype(np.uint8)
+        alpha[rng.random((h, w)) < 0.3] = 0
+        alpha[rng.random((h, w)) < 0.3] = 255
+        rgb = np.floor(rng.integers(0, 256, (h, w, 3)) * (alpha[..., None] / 255)).astype(np.uint8)
+        background = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
+        expected = np.round(rgb + background * ((255 - alpha[..., None]) / 255))
+        got = composite(np.dstack([rgb, alpha]), background, 0)
+        assert got.dtype == np.uint8 and got.shape == (h, w, 3)
+        np.testing.assert_array_equal(got, expected)
+
 def test_generate_releases_its_gl_context(tmp_path, monkeypatch):
     """A process that calls generate repeatedly (API users, benchmarks) must not keep
     every run's GL context: llvmpipe holds ~0.2 GB of textures per body in each. Also
