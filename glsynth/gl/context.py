@@ -57,6 +57,36 @@ def create_context(backend: str | None = None) -> moderngl.Context:
     return ctx
 
 
+class UnlockedGL:
+    """The GL calls that wait or work long, called through ctypes, which releases
+    Python's GIL for the call.
+
+    moderngl holds the GIL through every call: through the waits in ``read_into`` and
+    ``copy_framebuffer`` while llvmpipe's threads rasterise, and through a draw call,
+    in which llvmpipe shades the vertices on the calling thread (~20 and ~7 ms per
+    generated view). Other Python threads (a pipeline's writer threads) could not run
+    meanwhile. ``finish`` waits for the queued work, so that the moderngl call after
+    it finds it done; ``draw_arrays(first, count)`` draws triangles with the program
+    and vertex array a moderngl call bound. ``available`` is False (``finish`` is then
+    ``ctx.finish``) when the context's loader cannot give the functions."""
+
+    GL_TRIANGLES = 0x0004
+
+    def __init__(self, ctx: moderngl.Context):
+        try:
+            load = ctx.mglo._context.load_opengl_function
+            finish, draw = load("glFinish"), load("glDrawArrays")
+        except Exception:  # a loader without glcontext's interface
+            finish = draw = 0
+        self.available = bool(finish and draw)
+        self.finish = ctypes.CFUNCTYPE(None)(finish) if self.available else ctx.finish
+        self._draw = (ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.c_int, ctypes.c_int)(draw)
+                      if self.available else None)
+
+    def draw_arrays(self, first: int, count: int):
+        self._draw(self.GL_TRIANGLES, first, count)
+
+
 def _create_egl() -> moderngl.Context:
     if ctypes.util.find_library("EGL") is None and not _loadable("libEGL.so.1"):
         raise GLBackendError(

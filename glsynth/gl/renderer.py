@@ -18,7 +18,7 @@ from ..camera import Camera
 from ..lighting import Material, PointLight, check_lights
 from ..mesh import Mesh
 from ..resources import shader_source, with_defines
-from .context import create_context, default_backend
+from .context import UnlockedGL, create_context, default_backend
 
 log = logging.getLogger(__name__)
 
@@ -199,6 +199,7 @@ class Renderer:
         self.ctx = ctx or create_context(backend)
         with self.ctx:  # a shared context need not be current on this thread
             self._setup()
+        self._unlocked = UnlockedGL(self.ctx)
 
     def _setup(self):
         self.ctx.depth_clamp_range = (0.0, 1.0)  # enables GL_DEPTH_CLAMP (see Camera.clip_planes)
@@ -507,6 +508,7 @@ class Renderer:
         row 0 at the bottom); ``window`` = GL (x, y, w, h)."""
         w, h = fbo.size if window is None else window[2:]
         buf = np.empty((h, w, components) if components > 1 else (h, w), dtype=np_dtype)
+        self._unlocked.finish()  # wait with the GIL released
         fbo.read_into(buf, viewport=window, components=components, attachment=attachment,
                       dtype=dtype, alignment=1)
         return np.ascontiguousarray(buf[::-1]) if flip else buf
@@ -555,6 +557,7 @@ class Renderer:
         if n > 1:  # draw with MSAA, then resolve (average the samples) into the plain target
             msaa = self._fbo(f"rgb-msaa{n}", *fbo.size)
             self._draw(gpu, prog, msaa, mats)
+            self._unlocked.finish()  # wait for the draw with the GIL released
             self.ctx.copy_framebuffer(fbo, msaa)
         else:
             self._draw(gpu, prog, fbo, mats)
@@ -620,10 +623,16 @@ class Renderer:
             self.ctx.disable(moderngl.CULL_FACE)
         vao = gpu.vao(prog_name, prog)
         if "frustum" in mats and self.frustum_culling:
-            for first, count in gpu.visible_ranges(mats["frustum"]):
-                vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+            ranges = gpu.visible_ranges(mats["frustum"])
         else:
-            vao.render(moderngl.TRIANGLES, vertices=gpu.count)
+            ranges = [(0, gpu.count)]
+        if self._unlocked.available:
+            vao.render(moderngl.TRIANGLES, vertices=0)  # binds the program and vertex array
+            for first, count in ranges:
+                self._unlocked.draw_arrays(first, count)
+        else:
+            for first, count in ranges:
+                vao.render(moderngl.TRIANGLES, vertices=count, first=first)
         self.ctx.disable(moderngl.CULL_FACE)  # full-screen passes (resolve) draw both sides
 
     def depth(self, mesh: Mesh, camera: Camera) -> np.ndarray:
@@ -638,6 +647,7 @@ class Renderer:
             self.ctx.enable(moderngl.DEPTH_TEST)
             self._draw(gpu, "shadow", fbo, self._matrices(gpu, mesh, camera))
             z = np.empty((camera.height, camera.width), np.float32)
+            self._unlocked.finish()
             fbo.read_into(z, attachment=-1, dtype="f4", alignment=1)
         z = np.ascontiguousarray(z[::-1])
         ndc = 2.0 * z - 1.0  # invert the projection's depth mapping (window depth in [0, 1])
