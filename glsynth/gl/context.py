@@ -75,16 +75,29 @@ class UnlockedGL:
     def __init__(self, ctx: moderngl.Context):
         try:
             load = ctx.mglo._context.load_opengl_function
-            finish, draw = load("glFinish"), load("glDrawArrays")
+            address = {name: load(name) for name in
+                       ("glFinish", "glDrawArrays", "glBindFramebuffer", "glBlitFramebuffer")}
         except Exception:  # a loader without glcontext's interface
-            finish = draw = 0
-        self.available = bool(finish and draw)
-        self.finish = ctypes.CFUNCTYPE(None)(finish) if self.available else ctx.finish
-        self._draw = (ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.c_int, ctypes.c_int)(draw)
-                      if self.available else None)
+            address = {}
+        self.available = len(address) == 4 and all(address.values())
+        self.finish = ctypes.CFUNCTYPE(None)(address["glFinish"]) if self.available else ctx.finish
+        if self.available:
+            i, u = ctypes.c_int, ctypes.c_uint
+            self._draw = ctypes.CFUNCTYPE(None, u, i, i)(address["glDrawArrays"])
+            self._bind = ctypes.CFUNCTYPE(None, u, u)(address["glBindFramebuffer"])
+            self._blit = ctypes.CFUNCTYPE(None, i, i, i, i, i, i, i, i, u, u)(address["glBlitFramebuffer"])
 
     def draw_arrays(self, first: int, count: int):
         self._draw(self.GL_TRIANGLES, first, count)
+
+    def resolve(self, dst: moderngl.Framebuffer, src: moderngl.Framebuffer):
+        """Average ``src``'s multisampled colour into ``dst`` (same size), as
+        ``ctx.copy_framebuffer(dst, src)``; ``dst`` is bound afterwards."""
+        w, h = src.size
+        self._bind(0x8CA8, src.glo)  # GL_READ_FRAMEBUFFER
+        self._bind(0x8CA9, dst.glo)  # GL_DRAW_FRAMEBUFFER
+        self._blit(0, 0, w, h, 0, 0, w, h, 0x4000, 0x2600)  # colour, nearest
+        dst.use()  # moderngl binds GL_FRAMEBUFFER (both) and knows what is bound
 
 
 def _create_egl() -> moderngl.Context:

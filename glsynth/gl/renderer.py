@@ -557,8 +557,10 @@ class Renderer:
         if n > 1:  # draw with MSAA, then resolve (average the samples) into the plain target
             msaa = self._fbo(f"rgb-msaa{n}", *fbo.size)
             self._draw(gpu, prog, msaa, mats)
-            self._unlocked.finish()  # wait for the draw with the GIL released
-            self.ctx.copy_framebuffer(fbo, msaa)
+            if self._unlocked.available:  # the GIL released while it waits and copies
+                self._unlocked.resolve(fbo, msaa)
+            else:
+                self.ctx.copy_framebuffer(fbo, msaa)
         else:
             self._draw(gpu, prog, fbo, mats)
         if k > 1:
