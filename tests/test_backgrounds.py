@@ -112,3 +112,17 @@ def test_procedural_backgrounds_look_like_rooms():
     assert out.shape == (100, 200, 3)
     with pytest.raises(BackgroundError):
         procedural_backgrounds(1, size=16)
+
+
+def test_wide_blur_at_reduced_resolution_matches_the_full_blur():
+    import cv2
+    from glsynth.assets.backgrounds import _smooth
+    rng = np.random.default_rng()
+    for _ in range(20):
+        h, w = rng.integers(100, 600, 2)
+        mask = np.zeros((h, w), np.float32)
+        y0, x0 = rng.integers(0, h // 2), rng.integers(0, w // 2)
+        mask[y0:y0 + rng.integers(5, h // 2), x0:x0 + rng.integers(5, w // 2)] = 1
+        sigma = float(rng.uniform(4, 50))
+        full = cv2.GaussianBlur(mask, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        assert np.abs(_smooth(mask, sigma) - full).max() < 0.004, (sigma, h, w)
