@@ -434,18 +434,28 @@ class Renderer:
             if want - known:
                 raise ValueError(f"unknown buffer(s) {sorted(want - known)}; these passes make "
                                  f"{sorted(known)}")
-        if "gbuffer" in passes:  # with the labels in the same draw when both are asked for
-            out.update(self._render_gbuffer(gpu, mats, size, labels, layout, want))
-        elif labels is not None:
-            out.update(self._render_labels(gpu, mats, labels, layout, size))
+        # Every draw is issued before the first read-back: llvmpipe rasterises a draw in
+        # its threads while this thread shades the next one's vertices, and the shadow
+        # map (drawn first) is ready when the shading draw samples it.
         if "rgb" in passes:
             if mesh.texture is None:
                 raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
             eight_bit = want is not None and "rgba8" in want
             if eight_bit and {"rgb", "alpha"} & want:
                 raise ValueError("ask for rgb and alpha (float32) or rgba8, not both")
-            out.update(self._render_rgb(gpu, mesh, mats, camera, lights, material, supersample,
-                                        size, shadows, multisample, eight_bit))
+            prog = self._shading_program(gpu, mesh, camera, lights, material, shadows)
+        if "gbuffer" in passes:  # with the labels in the same draw when both are asked for
+            read_gbuffer = self._draw_gbuffer(gpu, mats, size, labels, layout, want)
+        elif labels is not None:
+            read_labels = self._draw_labels(gpu, mats, labels, layout, size)
+        if "rgb" in passes:
+            read_rgb = self._draw_rgb(gpu, prog, mats, supersample, size, multisample, eight_bit)
+        if "gbuffer" in passes:
+            out.update(read_gbuffer())
+        elif labels is not None:
+            out.update(read_labels())
+        if "rgb" in passes:
+            out.update(read_rgb())
         return out
 
     @staticmethod
@@ -521,13 +531,17 @@ class Renderer:
         raw = self._read(fbo, attachment, 4, "u2", np.uint16, flip=False)
         return {name: np.ascontiguousarray(raw[::-1, :, i]) for i, name in names}
 
-    def _render_gbuffer(self, gpu, mats, size, labels=None, label_layout=None, want=None):
+    def _draw_gbuffer(self, gpu, mats, size, labels=None, label_layout=None, want=None):
+        """Draw the G-buffer (and labels); returns the function that reads it back."""
         bary_uv = want is None or bool({"bary", "uv"} & want)
         kind = self._gbuffer_kind(labels is not None, bary_uv)
         fbo = self._fbo(kind, *size)
         # moderngl clears every attachment with the same value, so the shader writes
         # face id + 1 over a cleared 0; background depth is set to -1 from the face ids.
         self._draw(gpu, self._gbuffer_program(kind, label_layout), fbo, mats)
+        return lambda: self._read_gbuffer(fbo, bary_uv, labels, want)
+
+    def _read_gbuffer(self, fbo, bary_uv, labels, want):
         face = self._read(fbo, 0, 1, "i4", np.int32)
         face -= 1
         out = {"face_id": face}
@@ -542,15 +556,15 @@ class Renderer:
             out.update(self._read_labels(fbo, 4 if bary_uv else 2, labels, want))
         return out
 
-    def _render_rgb(self, gpu, mesh, mats, camera, lights, material, supersample, size, shadows,
-                    multisample=0, eight_bit=False):
+    def _draw_rgb(self, gpu, prog, mats, supersample, size, multisample=0, eight_bit=False):
+        """Draw with the shading program ``prog`` (``_shading_program``) and resolve;
+        returns the function that reads the image back."""
         k, n = int(supersample), int(multisample)
         if not 1 <= k <= MAX_SUPERSAMPLE:
             raise ValueError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
         if n < 0 or n > max(self.ctx.max_samples, 1) or (n > 1 and n & (n - 1)):
             raise ValueError(f"multisample must be 0 or a power of two up to {self.ctx.max_samples} "
                              f"(the most {self.info.get('GL_RENDERER')} supports), got {multisample}")
-        prog = self._shading_program(gpu, mesh, camera, lights, material, shadows)
         # 8-bit: resolve (average the samples) straight into unorm8, a quarter of the
         # read-back; the k x k downsample still reads float samples
         fbo = self._fbo("rgb8" if eight_bit and k == 1 else "rgb", size[0] * k, size[1] * k)
@@ -574,6 +588,9 @@ class Renderer:
             self._downsample["u_factor"].value = k
             self._empty_vao.render(moderngl.TRIANGLES, vertices=3)
             self.ctx.enable(moderngl.DEPTH_TEST)
+        return lambda: self._read_rgb(fbo, eight_bit)
+
+    def _read_rgb(self, fbo, eight_bit):
         if eight_bit:
             return {"rgba8": self._read(fbo, 0, 4, "f1", np.uint8)}
         rgba = self._read(fbo, 0, 4, "f4", np.float32, flip=False)  # flipped by the split
@@ -599,10 +616,10 @@ class Renderer:
             textures[min(i, len(textures) - 1)].use(i + 2)  # units 0, 1: colour, shadow map
         return [name for name, _ in items + per_vertex], (len(textures), len(items))
 
-    def _render_labels(self, gpu, mats, names, label_layout, size):
+    def _draw_labels(self, gpu, mats, names, label_layout, size):
         fbo = self._fbo("labels", *size)
         self._draw(gpu, self._gbuffer_program("labels", label_layout), fbo, mats)
-        return self._read_labels(fbo, 0, names)
+        return lambda: self._read_labels(fbo, 0, names)
 
     def _draw(self, gpu, prog_name, fbo, mats, clear=(0.0, 0.0, 0.0, 0.0), cull=True):
         """Draw the mesh with a program into ``fbo``. ``cull``: skip the faces turned

@@ -129,15 +129,20 @@ def buffers_for(outputs, labels) -> tuple:
 
 def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v, outputs):
     """Render one view; returns the layers dict (numpy) or raises ViewRejected. The
-    G-buffer and labels come first and decide acceptance; the shading pass (only when
-    RGB is asked for) runs for accepted views only."""
+    G-buffer and labels decide acceptance. The shading pass (only when RGB is asked
+    for) is drawn in the same call, so that llvmpipe rasterises each draw while the
+    next one is set up (a rejected view, rare once the light probe passed, wastes it)."""
     labels = {"instances": instances, "nonskin": body.nonskin}
     if nevi_map is not None:
         labels["nevi"] = nevi_map
     # anatomy: each pixel takes its face corner's part label, drawn with the other labels
     parts = {"anatomy": body.anatomy} if body.anatomy is not None and "anatomy" in outputs else {}
-    out = renderer.render(mesh_b, scene.camera, passes=("gbuffer", "labels"), label_textures=labels,
-                          vertex_labels=parts, buffers=buffers_for(outputs, [*labels, *parts]))
+    rgb = "rgb" in outputs
+    out = renderer.render(mesh_b, scene.camera, passes=("gbuffer", "labels", "rgb") if rgb else
+                          ("gbuffer", "labels"), label_textures=labels, vertex_labels=parts,
+                          buffers=buffers_for(outputs, [*labels, *parts]) + (("rgba8",) if rgb else ()),
+                          lights=scene.lights, material=scene.material, supersample=v.supersample,
+                          multisample=v.multisample, shadows=v.shadows)
     if scene.point is not None and not _centre_is(out["depth"], scene.camera, scene.point):
         raise ViewRejected("camera inside the mesh or the point is hidden")
     # masks and counts in place on uint8/uint16 (this runs on the render thread)
@@ -159,11 +164,8 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     np.putmask(inst, ~lesion, 0)
     layers = {"semantic": semantic, "instances": inst, "depth": out["depth"].astype(np.float32),
               "regions": instance_regions(inst), "fractions": fractions}
-    if "rgb" in outputs:
-        shaded = renderer.render(mesh_b, scene.camera, passes=("rgb",), lights=scene.lights,
-                                 material=scene.material, supersample=v.supersample,
-                                 multisample=v.multisample, shadows=v.shadows, buffers=("rgba8",))
-        layers["rgba"] = shaded["rgba8"]  # premultiplied RGB + coverage, uint8
+    if rgb:
+        layers["rgba"] = out["rgba8"]  # premultiplied RGB + coverage, uint8
     if parts:
         layers["anatomy"] = out["anatomy"].astype(np.uint8)
     if "face_id" in outputs:
