@@ -243,3 +243,38 @@ def test_generate_releases_its_gl_context(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="boom"):
         gs.pipeline.generate(small_config("blend.method=paste", "views.per_body=1"), tmp_path / "b")
     assert len(made) == 2 and closed == made
+
+
+def test_stages_release_the_renderer_they_make(tmp_path, monkeypatch):
+    """The paper's one-line stage calls leave no GL context behind; a renderer passed
+    in stays open for its owner."""
+    from glsynth.gl.renderer import Renderer
+    made, closed = [], []
+    init, close = Renderer.__init__, Renderer.close
+
+    def spy_init(self, *a, **k):
+        init(self, *a, **k)
+        made.append(self)
+
+    def spy_close(self):
+        close(self)
+        closed.append(self)
+
+    monkeypatch.setattr(Renderer, "__init__", spy_init)
+    monkeypatch.setattr(Renderer, "close", spy_close)
+    cfg = small_config("blend.method=poisson", "views.per_body=1", "bodies.count=1")
+    gs.SelectAndPaste(cfg, tmp_path).paste_on_locations()
+    gs.BlendLesions(cfg, tmp_path).blend_lesions()
+    views = gs.Generate2DViews(cfg, tmp_path)
+    views.synthesize_views(progress=False)
+    assert len(made) == 3 and closed == made
+    cfg2 = small_config("blend.method=poisson", "views.per_body=2", "bodies.count=1")
+    views.cfg = cfg2
+    views.synthesize_views(progress=False)  # a second call makes (and releases) a new one
+    assert len(made) == 4 and closed == made
+    assert len(_samples(tmp_path)) == 2
+    with Renderer(64, 64) as mine:
+        gs.Generate2DViews(small_config("views.per_body=3", "bodies.count=1"), tmp_path,
+                           renderer=mine).synthesize_views(progress=False)
+        assert mine not in closed
+    assert closed[-1] is mine

@@ -10,6 +10,7 @@ placements) and the blended texture T_b, which view generation reuses.
 """
 from __future__ import annotations
 
+import contextlib
 import gc
 import json
 import logging
@@ -34,9 +35,16 @@ log = logging.getLogger(__name__)
 
 
 class _Stage:
+    """A pipeline stage. Given no ``renderer``, it makes one on first use and releases
+    it (and its GL context) when the public call that made it returns, so the paper's
+    one-line use, ``SelectAndPaste(cfg, out).paste_on_locations()``, leaves nothing
+    behind (llvmpipe keeps ~0.2 GB of textures per body in a context). A renderer
+    passed in is the caller's to close."""
+
     def __init__(self, config: Config, out, renderer=None, body_subset=None):
         self.cfg, self.out = config, os.fspath(out)
         self._renderer = renderer
+        self._owns_renderer = renderer is None
         self.body_ids = body_subset if body_subset is not None else body_ids(config)
         self.timings = {}
         self._timings_lock = threading.Lock()  # finishing threads add to the timings too
@@ -48,6 +56,17 @@ class _Stage:
             size = max(self.cfg.paste.view_size, self.cfg.views.size)
             self._renderer = Renderer(size, size)
         return self._renderer
+
+    @contextlib.contextmanager
+    def _releasing_own_renderer(self):
+        """Around a public call: release the renderer this stage made during it."""
+        made_here = self._owns_renderer and self._renderer is None
+        try:
+            yield
+        finally:
+            if made_here and self._renderer is not None:
+                self._renderer.close()
+                self._renderer = None
 
     def body_dir(self, body_id):
         return os.path.join(self.out, "bodies", body_id)
@@ -78,6 +97,10 @@ class SelectAndPaste(_Stage):
     """Place ``lesions.per_body`` lesions on every body (skipping bodies done before)."""
 
     def paste_on_locations(self):
+        with self._releasing_own_renderer():
+            self._paste_on_locations()
+
+    def _paste_on_locations(self):
         cfg = self.cfg
         if cfg.lesions.per_body == 0:
             log.info("lesions.per_body is 0: nothing to paste")
@@ -113,6 +136,10 @@ class BlendLesions(_Stage):
     """Blend every pasted body's lesions (method from the config); writes blended.png."""
 
     def blend_lesions(self):
+        with self._releasing_own_renderer():
+            self._blend_lesions()
+
+    def _blend_lesions(self):
         cfg, b = self.cfg, self.cfg.blend
         extractor = getattr(self, "_extractor", None)
         self.feature_description = getattr(self, "feature_description", "none")
@@ -162,6 +189,10 @@ class Generate2DViews(_Stage):
     def synthesize_views(self, tasks=None, progress=True):
         """Render the (body id, view index) ``tasks`` (default: all of this run's) that
         are not written yet; returns {rejection reason: count}."""
+        with self._releasing_own_renderer():
+            return self._synthesize_views(tasks, progress)
+
+    def _synthesize_views(self, tasks, progress):
         v = self.cfg.views
         if tasks is None:
             tasks = [(b, j) for b in self.body_ids for j in range(v.per_body)]
