@@ -66,37 +66,44 @@ class UnlockedGL:
     in which llvmpipe shades the vertices on the calling thread (~20 and ~7 ms per
     generated view). Other Python threads (a pipeline's writer threads) could not run
     meanwhile. ``finish`` waits for the queued work, so that the moderngl call after
-    it finds it done; ``draw_arrays(first, count)`` draws triangles with the program
-    and vertex array a moderngl call bound. ``available`` is False (``finish`` is then
-    ``ctx.finish``) when the context's loader cannot give the functions."""
+    it finds it done. ``available`` is False (``finish`` is then ``ctx.finish``) when
+    the context's loader cannot give the functions."""
 
-    GL_TRIANGLES = 0x0004
+    _SIGNATURES = {"glFinish": (), "glUseProgram": ("u",), "glBindVertexArray": ("u",),
+                   "glDrawArrays": ("u", "i", "i"), "glBindFramebuffer": ("u", "u"),
+                   "glBlitFramebuffer": ("i",) * 8 + ("u", "u")}
+    GL_TRIANGLES, GL_READ_FRAMEBUFFER, GL_DRAW_FRAMEBUFFER = 0x0004, 0x8CA8, 0x8CA9
+    GL_COLOR_BUFFER_BIT, GL_NEAREST = 0x4000, 0x2600
 
     def __init__(self, ctx: moderngl.Context):
         try:
             load = ctx.mglo._context.load_opengl_function
-            address = {name: load(name) for name in
-                       ("glFinish", "glDrawArrays", "glBindFramebuffer", "glBlitFramebuffer")}
+            address = {name: load(name) for name in self._SIGNATURES}
         except Exception:  # a loader without glcontext's interface
             address = {}
-        self.available = len(address) == 4 and all(address.values())
-        self.finish = ctypes.CFUNCTYPE(None)(address["glFinish"]) if self.available else ctx.finish
+        self.available = bool(address) and all(address.values())
+        self.finish = ctx.finish
         if self.available:
-            i, u = ctypes.c_int, ctypes.c_uint
-            self._draw = ctypes.CFUNCTYPE(None, u, i, i)(address["glDrawArrays"])
-            self._bind = ctypes.CFUNCTYPE(None, u, u)(address["glBindFramebuffer"])
-            self._blit = ctypes.CFUNCTYPE(None, i, i, i, i, i, i, i, i, u, u)(address["glBlitFramebuffer"])
+            types = {"u": ctypes.c_uint, "i": ctypes.c_int}
+            self._gl = {name: ctypes.CFUNCTYPE(None, *(types[t] for t in sig))(address[name])
+                        for name, sig in self._SIGNATURES.items()}
+            self.finish = self._gl["glFinish"]
 
-    def draw_arrays(self, first: int, count: int):
-        self._draw(self.GL_TRIANGLES, first, count)
+    def draw(self, vao: moderngl.VertexArray, ranges):
+        """Draw triangles with ``vao`` and its program: (first vertex, count) per range,
+        into the bound framebuffer."""
+        self._gl["glUseProgram"](vao.program.glo)
+        self._gl["glBindVertexArray"](vao.glo)
+        for first, count in ranges:
+            self._gl["glDrawArrays"](self.GL_TRIANGLES, first, count)
 
     def resolve(self, dst: moderngl.Framebuffer, src: moderngl.Framebuffer):
         """Average ``src``'s multisampled colour into ``dst`` (same size), as
         ``ctx.copy_framebuffer(dst, src)``; ``dst`` is bound afterwards."""
         w, h = src.size
-        self._bind(0x8CA8, src.glo)  # GL_READ_FRAMEBUFFER
-        self._bind(0x8CA9, dst.glo)  # GL_DRAW_FRAMEBUFFER
-        self._blit(0, 0, w, h, 0, 0, w, h, 0x4000, 0x2600)  # colour, nearest
+        self._gl["glBindFramebuffer"](self.GL_READ_FRAMEBUFFER, src.glo)
+        self._gl["glBindFramebuffer"](self.GL_DRAW_FRAMEBUFFER, dst.glo)
+        self._gl["glBlitFramebuffer"](0, 0, w, h, 0, 0, w, h, self.GL_COLOR_BUFFER_BIT, self.GL_NEAREST)
         dst.use()  # moderngl binds GL_FRAMEBUFFER (both) and knows what is bound
 
 

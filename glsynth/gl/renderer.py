@@ -646,9 +646,7 @@ class Renderer:
         else:
             ranges = [(0, gpu.count)]
         if self._unlocked.available:
-            vao.render(moderngl.TRIANGLES, vertices=0)  # binds the program and vertex array
-            for first, count in ranges:
-                self._unlocked.draw_arrays(first, count)
+            self._unlocked.draw(vao, ranges)
         else:
             for first, count in ranges:
                 vao.render(moderngl.TRIANGLES, vertices=count, first=first)
