@@ -443,6 +443,7 @@ class Renderer:
             eight_bit = want is not None and "rgba8" in want
             if eight_bit and {"rgb", "alpha"} & want:
                 raise ValueError("ask for rgb and alpha (float32) or rgba8, not both")
+            self._check_sampling(supersample, multisample)  # before anything is drawn
             prog = self._shading_program(gpu, mesh, camera, lights, material, shadows)
         if "gbuffer" in passes:  # with the labels in the same draw when both are asked for
             read_gbuffer = self._draw_gbuffer(gpu, mats, size, labels, layout, want)
@@ -556,15 +557,19 @@ class Renderer:
             out.update(self._read_labels(fbo, 4 if bary_uv else 2, labels, want))
         return out
 
-    def _draw_rgb(self, gpu, prog, mats, supersample, size, multisample=0, eight_bit=False):
-        """Draw with the shading program ``prog`` (``_shading_program``) and resolve;
-        returns the function that reads the image back."""
+    def _check_sampling(self, supersample, multisample):
         k, n = int(supersample), int(multisample)
         if not 1 <= k <= MAX_SUPERSAMPLE:
             raise ValueError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
         if n < 0 or n > max(self.ctx.max_samples, 1) or (n > 1 and n & (n - 1)):
             raise ValueError(f"multisample must be 0 or a power of two up to {self.ctx.max_samples} "
                              f"(the most {self.info.get('GL_RENDERER')} supports), got {multisample}")
+        return k, n
+
+    def _draw_rgb(self, gpu, prog, mats, supersample, size, multisample=0, eight_bit=False):
+        """Draw with the shading program ``prog`` (``_shading_program``) and resolve;
+        returns the function that reads the image back."""
+        k, n = self._check_sampling(supersample, multisample)
         # 8-bit: resolve (average the samples) straight into unorm8, a quarter of the
         # read-back; the k x k downsample still reads float samples
         fbo = self._fbo("rgb8" if eight_bit and k == 1 else "rgb", size[0] * k, size[1] * k)

@@ -71,7 +71,8 @@ def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None, drawn
     direction /= np.linalg.norm(direction)
     light_pos = np.asarray(cam.eye) + direction * rng.uniform(*v.light_offset)
     if np.linalg.norm(light_pos - point) < 1e-6 or not _sees_point(
-            renderer, mesh if drawn is None else drawn, Camera.look_at(light_pos, point, fov_deg=5.0, width=16, height=16), point):
+            renderer, mesh if drawn is None else drawn,
+            Camera.look_at(light_pos, point, fov_deg=5.0, width=16, height=16), point):
         raise ViewRejected("light blocked by the body")
     # One intensity per term for R, G and B alike: independent channels would tint the
     # skin green or purple, which no clinical photo shows.
