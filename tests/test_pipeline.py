@@ -217,10 +217,9 @@ def test_composite_is_the_rounded_premultiplied_over():
         assert got.dtype == np.uint8 and got.shape == (h, w, 3)
         np.testing.assert_array_equal(got, expected)
 
-def test_generate_releases_its_gl_context(tmp_path, monkeypatch):
-    """A process that calls generate repeatedly (API users, benchmarks) must not keep
-    every run's GL context: llvmpipe holds ~0.2 GB of textures per body in each. Also
-    when the run fails."""
+@pytest.fixture
+def renderer_spy(monkeypatch):
+    """(made, closed): every Renderer made and every one closed, in order."""
     from glsynth.gl.renderer import Renderer
     made, closed = [], []
     init, close = Renderer.__init__, Renderer.close
@@ -235,6 +234,14 @@ def test_generate_releases_its_gl_context(tmp_path, monkeypatch):
 
     monkeypatch.setattr(Renderer, "__init__", spy_init)
     monkeypatch.setattr(Renderer, "close", spy_close)
+    return made, closed
+
+
+def test_generate_releases_its_gl_context(tmp_path, monkeypatch, renderer_spy):
+    """A process that calls generate repeatedly (API users, benchmarks) must not keep
+    every run's GL context: llvmpipe holds ~0.2 GB of textures per body in each. Also
+    when the run fails."""
+    made, closed = renderer_spy
     gs.pipeline.generate(small_config("blend.method=paste", "views.per_body=1"), tmp_path / "a")
     assert made and closed == made
     from glsynth.pipeline import stages
@@ -245,23 +252,11 @@ def test_generate_releases_its_gl_context(tmp_path, monkeypatch):
     assert len(made) == 2 and closed == made
 
 
-def test_stages_release_the_renderer_they_make(tmp_path, monkeypatch):
+def test_stages_release_the_renderer_they_make(tmp_path, renderer_spy):
     """The paper's one-line stage calls leave no GL context behind; a renderer passed
     in stays open for its owner."""
     from glsynth.gl.renderer import Renderer
-    made, closed = [], []
-    init, close = Renderer.__init__, Renderer.close
-
-    def spy_init(self, *a, **k):
-        init(self, *a, **k)
-        made.append(self)
-
-    def spy_close(self):
-        close(self)
-        closed.append(self)
-
-    monkeypatch.setattr(Renderer, "__init__", spy_init)
-    monkeypatch.setattr(Renderer, "close", spy_close)
+    made, closed = renderer_spy
     cfg = small_config("blend.method=poisson", "views.per_body=1", "bodies.count=1")
     gs.SelectAndPaste(cfg, tmp_path).paste_on_locations()
     gs.BlendLesions(cfg, tmp_path).blend_lesions()

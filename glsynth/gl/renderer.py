@@ -668,10 +668,7 @@ class Renderer:
             fbo = self._fbo("depth", camera.width, camera.height)
             self.ctx.enable(moderngl.DEPTH_TEST)
             self._draw(gpu, "shadow", fbo, self._matrices(gpu, mesh, camera))
-            z = np.empty((camera.height, camera.width), np.float32)
-            self._unlocked.finish()
-            fbo.read_into(z, attachment=-1, dtype="f4", alignment=1)
-        z = np.ascontiguousarray(z[::-1])
+            z = self._read(fbo, -1, 1, "f4", np.float32)  # the depth attachment
         ndc = 2.0 * z - 1.0  # invert the projection's depth mapping (window depth in [0, 1])
         view = (2.0 * near * far / (far + near - ndc * (far - near))).astype(np.float32)
         return np.where(z < 1.0, view, np.float32(-1.0))
