@@ -28,6 +28,7 @@ import torch.nn.functional as F
 from ..assets.lesions import load_lesions
 from ..io.images import read_mask, read_rgb, write_png, write_text
 from .data import preprocess
+from .detection import detection_scores, mask_boxes
 from .metrics import dice, jaccard
 from .trainer import load_model
 
@@ -36,29 +37,48 @@ COLOURS = np.array([[220, 40, 40], [70, 180, 80], [40, 40, 120], [150, 150, 150]
 PAPER = {"lesion": "0.61 ± 0.23", "skin": "0.88 ± 0.10", "nonskin": "0.60 ± 0.43"}
 
 
-def real_samples(path, layout):
-    """[(id, image_path, {class: mask_path or None})] of a real evaluation folder."""
+def real_samples(path, layout, with_meta=False):
+    """[(id, image_path, {class: mask_path or None})] of a real evaluation folder (with
+    ``with_meta``, a fourth element: the image's metadata, e.g. the CSV row's ``label``
+    (diagnosis) and ``fitzpatrick``)."""
     lesions = load_lesions(path, layout=layout, lazy=True)
     out = []
     for e in lesions.entries:
+        extra = (e.meta,) if with_meta else ()
         if layout == "fitz17k":
             ns = e.meta.get("nonskin_mask_path")
             les = e.meta.get("lesions_mask_path")
             les = les if les and os.path.isfile(les) else e.mask_paths[-1]
             out.append((e.id, e.image_path, {"lesion": les,
-                                            "nonskin": ns if ns and os.path.isfile(ns) else None}))
+                                            "nonskin": ns if ns and os.path.isfile(ns) else None},
+                        *extra))
         else:
-            out.append((e.id, e.image_path, {"lesion": e.mask_paths[-1]}))
+            out.append((e.id, e.image_path, {"lesion": e.mask_paths[-1]}, *extra))
     return out
 
 
+def read_real(path, layout):
+    """Yield (id, RGB uint8, truth map) for every image of a real folder (``truth_map``
+    codes); a folder without usable images or a mask that does not match its image is
+    an error naming the folder or file."""
+    for sid, img_path, masks in real_samples(path, layout):
+        rgb = read_rgb(img_path)
+        yield sid, rgb, truth_map(rgb.shape[:2], masks)
+
+
 @torch.no_grad()
-def predict(model, rgb: np.ndarray, size: int, device="cpu") -> np.ndarray:
-    """HxW uint8 class map (0 lesion, 1 skin, 2 non-skin) at the image's own resolution."""
+def predict_probs(model, rgb: np.ndarray, size: int, device="cpu") -> np.ndarray:
+    """3 x H x W float32 softmax probabilities (lesion, skin, non-skin) at the image's own
+    resolution (logits upsampled bilinearly, then the softmax)."""
     x = torch.from_numpy(preprocess(rgb, size))[None].to(device)
     logits = model(x)["seg"]
     logits = F.interpolate(logits, size=rgb.shape[:2], mode="bilinear", align_corners=False)
-    return logits.argmax(1)[0].to(torch.uint8).cpu().numpy()
+    return torch.softmax(logits, 1)[0].float().cpu().numpy()
+
+
+def predict(model, rgb: np.ndarray, size: int, device="cpu") -> np.ndarray:
+    """HxW uint8 class map (0 lesion, 1 skin, 2 non-skin) at the image's own resolution."""
+    return predict_probs(model, rgb, size, device).argmax(0).astype(np.uint8)
 
 
 def truth_map(shape, masks: dict) -> np.ndarray:
@@ -141,23 +161,61 @@ def summarise(rows, classes):
     return s
 
 
-def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, progress=True):
+def detection_row(probs: np.ndarray, truth: np.ndarray) -> dict:
+    """The paper's box metrics for one image: lesion boxes from the connected components
+    of the predicted lesion mask (confidence: mean lesion probability; components under
+    1e-4 of the image are dropped as specks) against those of the true lesion mask."""
+    pred = probs.argmax(0) == 0
+    boxes, scores = mask_boxes(pred, probs[0], min_area=max(1, round(1e-4 * pred.size)))
+    truth_boxes, _ = mask_boxes(truth == 0)
+    return detection_scores(boxes, scores, truth_boxes)
+
+
+DETECTION = ("ap_centroid", "ap50", "box_iou", "precision", "recall")
+
+
+def summarise_detection(rows) -> dict:
+    """Means over the images with at least one true lesion box (the others have no AP)."""
+    with_truth = [r for r in rows if r.get("n_truth_boxes", 0) > 0]
+    out = {"n_images": len(with_truth)}
+    for k in DETECTION:
+        vals = [r[k] for r in with_truth if not np.isnan(r[k])]
+        out[k] = float(np.mean(vals)) if vals else float("nan")
+        out[f"{k}_std"] = float(np.std(vals)) if vals else float("nan")
+    return out
+
+
+def breakdown(rows, key, classes) -> dict:
+    """Mean per-image Jaccard of each class for each value of ``key`` (e.g. diagnosis)."""
+    groups = {}
+    for r in rows:
+        if r.get(key) not in (None, ""):
+            groups.setdefault(str(r[key]), []).append(r)
+    return {g: {"n": len(rs), **{c: float(np.mean([r[f"{c}_jaccard"] for r in rs])) for c in classes}}
+            for g, rs in sorted(groups.items())}
+
+
+def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, progress=True,
+             extra=None):
     """Score `model_path` on the real images in `real`; write report.md, per_image.csv,
-    summary.json and grid.png to `out`. Returns the summary dict."""
+    summary.json and grid.png to `out`. Returns the summary dict (``extra`` is merged
+    into it before it is written)."""
     if layout not in ("fitz17k", "pairs"):
         raise ValueError(f"unknown layout {layout!r} (expected 'fitz17k' or 'pairs')")
     model, ck = load_model(model_path, device)
     size = int(size or ck["hparams"]["size"])
-    samples = real_samples(real, layout)
+    samples = real_samples(real, layout, with_meta=True)
     classes = CLASSES if layout == "fitz17k" else ("lesion",)
     rows, shown = [], []
     from tqdm import tqdm
-    for sid, img_path, masks in tqdm(samples, desc="evaluate", unit="img", disable=not progress):
+    for sid, img_path, masks, meta in tqdm(samples, desc="evaluate", unit="img", disable=not progress):
         rgb = read_rgb(img_path)
         truth = truth_map(rgb.shape[:2], masks)
-        pred = predict(model, rgb, size, device)
+        probs = predict_probs(model, rgb, size, device)
+        pred = probs.argmax(0).astype(np.uint8)
         rows.append({"id": sid, "image": img_path, "width": rgb.shape[1], "height": rgb.shape[0],
-                     **score(pred, truth, classes)})
+                     "diagnosis": meta.get("label") or "", "fitzpatrick": meta.get("fitzpatrick") or "",
+                     **score(pred, truth, classes), **detection_row(probs, truth)})
         if len(shown) < grid_n:
             shown.append((sid, rgb, truth, pred))
     os.makedirs(out, exist_ok=True)
@@ -169,7 +227,10 @@ def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, 
     write_text(os.path.join(out, "per_image.csv"), buf.getvalue())
     summary = {"model": os.fspath(model_path), "real": os.fspath(real), "layout": layout, "size": size,
                "n_images": len(rows), "classes": summarise(rows, classes),
-               "model_steps": ck.get("step"), "model_data": ck.get("data")}
+               "detection": summarise_detection(rows),
+               "by_diagnosis": breakdown(rows, "diagnosis", classes),
+               "by_fitzpatrick": breakdown(rows, "fitzpatrick", classes),
+               "model_steps": ck.get("step"), "model_data": ck.get("data"), **(extra or {})}
     write_text(os.path.join(out, "summary.json"), json.dumps(summary, indent=1))
     write_png(os.path.join(out, "grid.png"), grid(shown))
     write_text(os.path.join(out, "report.md"), report_md(summary))
@@ -192,6 +253,23 @@ def report_md(s):
         lines.append(f"| {c} | {v['jaccard_mean']:.3f} ± {v['jaccard_std']:.3f} | "
                      f"{v['dice_mean']:.3f} ± {v['dice_std']:.3f} | {v['n_empty_truth']} / {v['n']} | "
                      f"{v['jaccard_nonempty_mean']:.3f} ± {v['jaccard_nonempty_std']:.3f} | {PAPER[c]} |")
+    d = s.get("detection")
+    if d and d["n_images"]:
+        lines += ["", "Lesion boxes from the connected components of the predicted lesion mask "
+                  "(confidence: mean lesion probability) against those of the true mask, per image, "
+                  f"mean ± std over the {d['n_images']} images with a true lesion: AP_centroid "
+                  "(Skin3D's rule: each box contains the other's centre), AP50 (IoU > 0.5), and "
+                  "box IoU, precision and recall of the boxes with confidence ≥ 0.5.", "",
+                  "| AP_centroid | AP50 | box IoU | precision | recall |", "|---|---|---|---|---|",
+                  "| " + " | ".join(f"{d[k]:.3f} ± {d[k + '_std']:.3f}" for k in DETECTION) + " |"]
+    for key, title in (("by_diagnosis", "diagnosis"), ("by_fitzpatrick", "Fitzpatrick type")):
+        groups = s.get(key) or {}
+        if groups:
+            cls = [c for c in CLASSES if c in next(iter(groups.values()))]
+            lines += ["", f"Mean per-image Jaccard by {title}:", "",
+                      f"| {title} | n | " + " | ".join(cls) + " |", "|---|---|" + "---|" * len(cls)]
+            lines += [f"| {g} | {v['n']} | " + " | ".join(f"{v[c]:.3f}" for c in cls) + " |"
+                      for g, v in groups.items()]
     lines += ["", "`per_image.csv` has every image's scores and pixel counts; `grid.png` shows "
               "image / truth / prediction (red lesion, green skin, blue non-skin, grey unknown)."]
     if s["layout"] == "pairs":
