@@ -340,3 +340,73 @@ def test_heldout_procedural_folder_is_consistent(tmp_path):
         t = truth_map(img.shape[:2], masks)
         assert (t == 0).any() and (t == 1).any()      # a lesion on some healthy skin
     assert (truth_map((96, 96), samples[1][2]) == 2).any()   # non-skin around the skin region
+
+
+# ---------------------------------------------------------------------------------------
+# Validation-based checkpoint selection, real images in training, augmentation
+
+
+def test_mixed_batches_hold_the_requested_ratio():
+    from glsynth.train.trainer import epoch_batches
+    for n_synth, n_real, batch, ratio in [(50, 7, 8, 0.25), (33, 3, 6, 0.5), (10, 40, 4, 0.75)]:
+        batches = epoch_batches(n_synth, n_real, batch, ratio, seed=5, epoch=2)
+        k_real = round(ratio * batch)
+        synth = [i for b in batches for s, i in b if s == 0]
+        assert sorted(synth) == list(range(n_synth))           # one pass over the synthetic set
+        for b in batches[:-1]:
+            assert sum(s == 1 for s, _ in b) == k_real and len(b) == batch
+        real = [i for b in batches for s, i in b if s == 1]
+        # real samples are drawn without repeats until the set is used up
+        for start in range(0, len(real) - n_real + 1, n_real):
+            assert sorted(real[start:start + n_real]) == list(range(n_real))
+        assert batches == epoch_batches(n_synth, n_real, batch, ratio, seed=5, epoch=2)
+    # real images only (staged fine-tuning): one pass over them
+    only = epoch_batches(0, 10, 4, 0.25, seed=1, epoch=0)
+    assert sorted(i for b in only for _, i in b) == list(range(10)) and all(s == 1 for b in only for s, _ in b)
+
+
+def test_checkpoint_selection_keeps_the_lowest_validation_loss(synth, tmp_path):
+    from glsynth.train.trainer import best_path, Validator
+    real = tmp_path / "val"
+    _fitz_fixture(real, np.random.default_rng(1))
+    ck = train(synth, tmp_path / "m.pt", epochs=6, seed=2, val=real, val_every=1, **FAST)
+    hist = ck["val_history"]
+    assert len(hist) >= ck["step"]                     # validated after every step
+    best = min(hist, key=lambda r: r["loss"])
+    assert ck["best"]["step"] == best["step"] and ck["best"]["loss"] == pytest.approx(best["loss"])
+    model, saved = load_model(best_path(tmp_path / "m.pt"))
+    assert saved["step"] == best["step"]
+    again = Validator(real, "fitz17k", 64)(model)       # the saved weights score what was recorded
+    assert again["loss"] == pytest.approx(best["loss"], abs=1e-5)
+    assert again["lesion"] == pytest.approx(best["lesion"], abs=1e-6)
+    assert not (np.diff([r["loss"] for r in hist]) == 0).all()   # it changed as it trained
+
+
+def test_real_images_train_the_lesion_skin_head(tmp_path):
+    real = tmp_path / "real"
+    _fitz_fixture(real, np.random.default_rng(2))
+    ck = train([], tmp_path / "r.pt", epochs=3, seed=0, real_train=real, **FAST)
+    assert ck["n_real"] == 3 and ck["n_samples"] == 0 and ck["step"] == 3   # 3 images, batch 4
+    assert np.isfinite(ck["history"][-1]["loss"])
+
+
+def test_augmentation_is_seeded_and_degrades_like_a_camera():
+    from glsynth.train import data as D
+    rng = np.random.default_rng(0)
+    img = np.clip(rng.normal(150, 30, (96, 128, 3)), 0, 255).astype(np.uint8)
+    lab = {"seg": (rng.random((96, 128)) > 0.5).astype(np.uint8)}
+    a1, l1 = D.augment(np.random.default_rng([4, 1]), img, lab, 64)
+    a2, l2 = D.augment(np.random.default_rng([4, 1]), img, lab, 64)
+    assert (a1 == a2).all() and (l1["seg"] == l2["seg"]).all()
+    # the geometry is the same with and without the degradations: labels identical
+    a3, l3 = D.augment(np.random.default_rng([4, 1]), img, lab, 64, degrade=False)
+    assert (l3["seg"] == l1["seg"]).all()
+    # zoom: at 3x a 64 px crop of a 96 px image spans ~21 source px
+    sharp = np.zeros((96, 96, 3), np.uint8)
+    sharp[:, ::2] = 255
+    seen = []
+    for k in range(40):
+        out, _ = D.augment(np.random.default_rng([9, k]), sharp, {"s": np.zeros((96, 96), np.uint8)}, 64,
+                           scale_range=(3.0, 3.0), degrade=False)
+        seen.append(out.std())
+    assert np.median(seen) > 30      # stripes stay resolved when magnified

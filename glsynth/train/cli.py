@@ -11,14 +11,23 @@ def _threads(args):
 def cmd_train(args):
     from .trainer import train
     _threads(args)
-    ck = train(args.data, args.out, size=args.size, epochs=args.epochs, batch_size=args.batch_size,
-               lr=args.lr, device=args.device, time_limit=args.time_limit, resume=args.resume,
-               seed=args.seed, init=args.init, workers=args.workers, width=args.width,
-               save_every=args.save_every, progress=not args.quiet)
+    if not args.data and not args.real_train:
+        raise ValueError("give --data (synthetic) and/or --real-train (real) folders")
+    ck = train(args.data or [], args.out, size=args.size, epochs=args.epochs,
+               batch_size=args.batch_size, lr=args.lr, device=args.device,
+               time_limit=args.time_limit, resume=args.resume, seed=args.seed, init=args.init,
+               workers=args.workers, width=args.width, depth=args.depth,
+               save_every=args.save_every, progress=not args.quiet, val=args.val,
+               val_layout=args.val_layout, val_every=args.val_every, real_train=args.real_train,
+               real_layout=args.real_layout, real_ratio=args.real_ratio)
     h = ck["history"][-1] if ck["history"] else {}
     print(f"wrote {args.out}: epoch {ck['epoch']}/{ck['epochs_planned']}, step {ck['step']}, "
           f"{ck['n_parameters']} parameters" + (f", last epoch loss {h['loss']:.4f}" if h else "")
           + (f" (stopped: {ck['stopped']}; continue with --resume)" if ck.get("stopped") else ""))
+    if ck.get("best"):
+        from .trainer import best_path
+        b = ck["best"]
+        print(f"best on {args.val}: step {b['step']}, validation loss {b['loss']:.4f} -> {best_path(args.out)}")
 
 
 def cmd_evaluate(args):
@@ -26,15 +35,23 @@ def cmd_evaluate(args):
     _threads(args)
     s = evaluate(args.model, args.real, args.layout, args.out, device=args.device, size=args.size,
                  grid_n=args.grid, progress=not args.quiet)
+    print_summary(s)
+    print(f"wrote {args.out}/report.md, per_image.csv, grid.png")
+
+
+def print_summary(s):
     for c, v in s["classes"].items():
         print(f"{c:8s} Jaccard {v['jaccard_mean']:.3f} ± {v['jaccard_std']:.3f}  "
               f"Dice {v['dice_mean']:.3f} ± {v['dice_std']:.3f}  ({v['n_empty_truth']}/{v['n']} empty truth)")
-    print(f"wrote {args.out}/report.md, per_image.csv, grid.png")
+    d = s.get("detection") or {}
+    if d.get("n_images"):
+        print(f"boxes    AP_centroid {d['ap_centroid']:.3f}  AP50 {d['ap50']:.3f}  "
+              f"box IoU {d['box_iou']:.3f}  ({d['n_images']} images with lesions)")
 
 
 def register(sub):
     p = sub.add_parser("train", help="train the lesion/skin/non-skin + anatomy segmentation network")
-    p.add_argument("--data", action="append", required=True, metavar="DIR",
+    p.add_argument("--data", action="append", metavar="DIR",
                    help="glsynth generate output folder (repeatable)")
     p.add_argument("--out", required=True, help="checkpoint to write (e.g. model.pt)")
     p.add_argument("--size", type=int, default=256, help="training crop size in pixels (default 256)")
@@ -48,6 +65,18 @@ def register(sub):
     p.add_argument("--init", default=None, help="initialise from a local checkpoint / state dict")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--width", type=float, default=1.0, help="channel width multiplier of the network")
+    p.add_argument("--depth", type=int, default=0, help="extra blocks per encoder stage (default 0)")
+    p.add_argument("--val", default=None, metavar="DIR",
+                   help="real validation images: keep the checkpoint with the lowest validation "
+                        "loss in <out>.best.pt (the paper's model selection)")
+    p.add_argument("--val-layout", default="fitz17k", choices=("fitz17k", "pairs"))
+    p.add_argument("--val-every", type=int, default=None, metavar="STEPS",
+                   help="validate every STEPS steps (default: 8 times per epoch, at most every 250)")
+    p.add_argument("--real-train", default=None, metavar="DIR",
+                   help="real training images mixed into every batch (see --real-ratio)")
+    p.add_argument("--real-layout", default="fitz17k", choices=("fitz17k", "pairs"))
+    p.add_argument("--real-ratio", type=float, default=0.25,
+                   help="share of real images in each batch with --real-train (default 0.25)")
     p.add_argument("--workers", type=int, default=0, help="data loader processes (default 0)")
     p.add_argument("--save-every", type=float, default=5.0, metavar="MIN",
                    help="also checkpoint every MIN minutes within an epoch (default 5)")

@@ -8,11 +8,13 @@ can be dropped in), and a resize that keeps the aspect ratio so that the shorter
 equals the training size.
 
 Training augmentation (``augment``): random horizontal and vertical flips, rotation
-(+-30 degrees), scale (0.75-1.33) and translation, applied as one affine warp to the
-image (bilinear) and to every label map (nearest); brightness, contrast, saturation and
-hue shifts and a per-channel gain (a colour cast, which Shades of Gray partly undoes, as
-it would on a real photograph), all before the colour constancy step. Pixels that the
-warp brings in from outside the image are marked 255 (ignored) in the labels.
+(a multiple of 90 degrees plus up to +-30), zoom (0.75-3x: close-ups from mid-range
+views) and translation, applied as one affine warp to the image (bilinear) and to every
+label map (nearest); brightness, contrast, saturation and hue shifts and a per-channel
+gain (a colour cast, which Shades of Gray partly undoes, as it would on a real
+photograph); then blur, sensor noise and JPEG compression, all before the colour
+constancy step. Pixels that the warp brings in from outside the image are marked 255
+(ignored) in the labels.
 """
 from __future__ import annotations
 
@@ -62,22 +64,36 @@ def _colour_jitter(rng, img):
     return np.clip(np.rint(x * 255.0), 0, 255).astype(np.uint8)
 
 
-def augment(rng: np.random.Generator, image: np.ndarray, labels: dict, size: int):
-    """Random affine + colour augmentation to a size x size crop.
+# Zoom relative to "shorter side = size": log-uniform, up to 3x so that mid-range views
+# also yield close-ups (a lesion and a hand's width of skin), as clinical photos are.
+SCALE_RANGE = (0.75, 3.0)
 
+
+def augment(rng: np.random.Generator, image: np.ndarray, labels: dict, size: int,
+            scale_range=SCALE_RANGE, degrade=True):
+    """Random geometric, colour and camera augmentation to a size x size crop.
+
+    Geometry, one affine warp for the image (bilinear) and every label map (nearest):
+    flips, a rotation by a multiple of 90 degrees plus up to +-30, a zoom in
+    ``scale_range`` and a shift of the crop (within the image when zoomed in). Then the
+    colour jitter, and (``degrade``) the degradations of real photographs: Gaussian
+    blur, sensor noise and JPEG compression, each with its own probability.
     image: HxWx3 uint8; labels: name -> HxW uint8 maps (IGNORE-valued pixels stay ignored).
     Returns (image, labels) at size x size.
     """
     h, w = image.shape[:2]
     base = size / min(h, w)
-    s = base * np.exp(rng.uniform(np.log(0.75), np.log(1.33)))
-    ang = rng.uniform(-30, 30)
+    zoom = np.exp(rng.uniform(np.log(scale_range[0]), np.log(scale_range[1])))
+    s = base * zoom
+    ang = rng.uniform(-30, 30) + 90 * int(rng.integers(4))
     fx = -1.0 if rng.random() < 0.5 else 1.0
     fy = -1.0 if rng.random() < 0.5 else 1.0
     a = np.deg2rad(ang)
     R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) @ np.diag([fx, fy]) * s
-    # image centre (plus a random shift of up to 15% of the view) -> output centre
-    c_src = np.array([w / 2, h / 2]) + rng.uniform(-0.15, 0.15, 2) * np.array([w, h])
+    # crop centre: up to 15% of the image off its centre, or anywhere that keeps a
+    # zoomed-in crop inside the image
+    reach = np.maximum(0.15, 0.5 - 0.5 * size / (s * np.array([w, h])))
+    c_src = np.array([w / 2, h / 2]) + rng.uniform(-1, 1, 2) * reach * np.array([w, h])
     t = np.array([size / 2, size / 2]) - R @ c_src
     M = np.hstack([R, t[:, None]]).astype(np.float64)
     img = cv2.warpAffine(image, M, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
@@ -85,7 +101,27 @@ def augment(rng: np.random.Generator, image: np.ndarray, labels: dict, size: int
     for k, lab in labels.items():
         out[k] = cv2.warpAffine(lab, M, (size, size), flags=cv2.INTER_NEAREST,
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=IGNORE)
-    return _colour_jitter(rng, img), out
+    img = _colour_jitter(rng, img)
+    return (_degrade(rng, img) if degrade else img), out
+
+
+def _degrade(rng, img):
+    """Blur (p 0.3, sigma 0.3-1.5 px), Gaussian noise (p 0.5, std 1-8 levels) and JPEG
+    (p 0.5, quality 30-95), in the order a camera applies them. Each draws its random
+    numbers whether or not it applies, so one change leaves the others' draws alone."""
+    blur, sigma = rng.random() < 0.3, rng.uniform(0.3, 1.5)
+    noisy, std = rng.random() < 0.5, rng.uniform(1.0, 8.0)
+    jpeg, quality = rng.random() < 0.5, int(rng.integers(30, 96))
+    noise_seed = int(rng.integers(2**31))
+    if blur:
+        img = cv2.GaussianBlur(img, (0, 0), sigma)
+    if noisy:
+        noise = np.random.default_rng(noise_seed).normal(0, std, img.shape).astype(np.float32)
+        img = np.clip(img.astype(np.float32) + noise, 0, 255).round().astype(np.uint8)
+    if jpeg:
+        ok, buf = cv2.imencode(".jpg", img[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
+        img = np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+    return img
 
 
 def plain(image: np.ndarray, labels: dict, size: int):

@@ -39,14 +39,21 @@ class DSConv(nn.Module):
 
 
 class SegNet(nn.Module):
-    def __init__(self, n_seg=3, n_anatomy=8, width=1.0):
+    def __init__(self, n_seg=3, n_anatomy=8, width=1.0, depth=0):
+        """width: channel multiplier; depth: extra residual blocks in each encoder stage
+        from 1/4 down (0 is the original network)."""
         super().__init__()
+        if width <= 0 or depth < 0:
+            raise ValueError(f"SegNet width must be > 0 and depth >= 0, got {width}, {depth}")
         c = [max(8, int(round(v * width))) for v in (16, 32, 48, 96, 160)]
-        self.arch = {"name": "SegNet", "n_seg": n_seg, "n_anatomy": n_anatomy, "width": width}
+        self.arch = {"name": "SegNet", "n_seg": n_seg, "n_anatomy": n_anatomy, "width": width,
+                     "depth": int(depth)}
+        extra = [[DSConv(ch, ch) for _ in range(int(depth))] for ch in c[1:4]]
         self.stem = nn.Sequential(nn.Conv2d(3, c[0], 3, 2, 1, bias=False), _bn_act(c[0]))  # /2
-        self.enc1 = nn.Sequential(DSConv(c[0], c[1], 2), DSConv(c[1], c[1]))               # /4
-        self.enc2 = nn.Sequential(DSConv(c[1], c[2], 2), DSConv(c[2], c[2]))               # /8
-        self.enc3 = nn.Sequential(DSConv(c[2], c[3], 2), DSConv(c[3], c[3]), DSConv(c[3], c[3]))  # /16
+        self.enc1 = nn.Sequential(DSConv(c[0], c[1], 2), DSConv(c[1], c[1]), *extra[0])    # /4
+        self.enc2 = nn.Sequential(DSConv(c[1], c[2], 2), DSConv(c[2], c[2]), *extra[1])    # /8
+        self.enc3 = nn.Sequential(DSConv(c[2], c[3], 2), DSConv(c[3], c[3]), DSConv(c[3], c[3]),
+                                  *extra[2])                                                # /16
         self.enc4 = nn.Sequential(DSConv(c[3], c[4], 2), DSConv(c[4], c[4], dilation=2),
                                   DSConv(c[4], c[4], dilation=4))                           # /32
         # LR-ASPP-style global context: a sigmoid gate from globally pooled features.

@@ -15,29 +15,60 @@ import os
 import tempfile
 import time
 
+import cv2
 import numpy as np
 import torch
 
 from ..dataset import SynthDataset
 from . import data as D
-from .loss import fuzzy_jaccard_loss, nevi_ignore_mask
+from .loss import fuzzy_jaccard_loss, nevi_ignore_mask, seg_jaccard_loss
 from .model import SegNet, count_parameters
 
 log = logging.getLogger(__name__)
 FORMAT = "glsynth-segnet"
 
 
-class TrainSet(torch.utils.data.Dataset):
-    """glsynth dataset folders -> (image, seg target, anatomy target, ignore) tensors.
+class RealSet:
+    """Real photographs with masks as training samples: target 0 lesion, 1 skin,
+    2 non-skin from the Fitzpatrick17k layout's lesions.png / nonskin.png (``pairs``: the
+    lesion mask only, everything else ignored); no anatomy (ignored). Images are decoded
+    once and kept at up to 3x the training size (enough for the zoom augmentation)."""
 
-    Indexed by (epoch, i) so that augmentation depends only on (seed, epoch, i).
+    def __init__(self, root, layout="fitz17k", size=256):
+        from .evaluate import read_real
+        self.root, self.items = os.fspath(root), []
+        for sid, rgb, truth in read_real(root, layout):
+            keep = min(1.0, 3 * size / min(rgb.shape[:2]))
+            if keep < 1:
+                dsize = (round(rgb.shape[1] * keep), round(rgb.shape[0] * keep))
+                rgb = cv2.resize(rgb, dsize, interpolation=cv2.INTER_AREA)
+                truth = cv2.resize(truth, dsize, interpolation=cv2.INTER_NEAREST)
+            truth = np.where(truth == 3, D.IGNORE, truth).astype(np.uint8)
+            self.items.append((sid, rgb, truth))
+
+    def __len__(self):
+        return len(self.items)
+
+    def load(self, i):
+        sid, rgb, truth = self.items[i]
+        none = np.full(truth.shape, D.IGNORE, np.uint8)
+        return rgb, {"seg": truth, "anatomy": none, "nevi": np.zeros(truth.shape, np.uint8)}, sid
+
+
+class TrainSet(torch.utils.data.Dataset):
+    """glsynth dataset folders (and optionally a RealSet) -> (image, seg target, anatomy
+    target, ignore) tensors.
+
+    Indexed by (epoch, source, i), source 0 synthetic and 1 real, so that augmentation
+    depends only on (seed, epoch, source, i) (synthetic samples: (seed, epoch, i)).
     """
 
-    def __init__(self, roots, size=256, seed=0, augment=True):
+    def __init__(self, roots, size=256, seed=0, augment=True, real=None):
         self.sets = [SynthDataset(r, targets=("three_class", "anatomy_groups")) for r in roots]
         self.index = [(k, j) for k, s in enumerate(self.sets) for j in range(len(s))]
-        if not self.index:
-            raise ValueError(f"no samples in {', '.join(map(str, roots))}")
+        self.real = real
+        if not self.index and not (real and len(real)):
+            raise ValueError(f"no samples in {', '.join(map(str, roots)) or 'the training data'}")
         self.size, self.seed, self.aug = size, seed, augment
 
     def __len__(self):
@@ -53,10 +84,11 @@ class TrainSet(torch.utils.data.Dataset):
         return img, {"seg": seg, "anatomy": anat, "nevi": nevi}, item["id"]
 
     def __getitem__(self, key):
-        epoch, i = key if isinstance(key, tuple) else (0, key)
-        img, labels, _ = self.load(i)
+        """key: (epoch, source, i) from ``epoch_batches``."""
+        epoch, source, i = key
+        img, labels, _ = self.real.load(i) if source else self.load(i)
         if self.aug:
-            rng = np.random.default_rng([self.seed, epoch, i])
+            rng = np.random.default_rng([self.seed, epoch, i] if not source else [self.seed, epoch, 1, i])
             img, labels = D.augment(rng, img, labels, self.size)
         else:
             img, labels = D.plain(img, labels, self.size)
@@ -64,6 +96,28 @@ class TrainSet(torch.utils.data.Dataset):
                 torch.from_numpy(labels["seg"].astype(np.int64)),
                 torch.from_numpy(labels["anatomy"].astype(np.int64)),
                 torch.from_numpy(labels["nevi"] == 1))
+
+
+def epoch_batches(n_synth, n_real, batch_size, real_ratio, seed, epoch) -> list:
+    """The batches of one epoch as lists of (source, index) keys (source 0 synthetic,
+    1 real), drawn from (seed, epoch). An epoch is one pass over the synthetic samples;
+    with real samples as well, each batch holds ``round(real_ratio * batch_size)`` of
+    them (at least 1 and at most batch_size - 1), drawn without repeats until the real
+    set is used up, then again. Without synthetic samples an epoch is one pass over the
+    real ones."""
+    if n_synth == 0 or (n_real and real_ratio >= 1):
+        order = np.random.default_rng([seed, epoch, 1]).permutation(n_real)
+        return [[(1, int(i)) for i in order[b:b + batch_size]] for b in range(0, n_real, batch_size)]
+    order = np.random.default_rng([seed, epoch]).permutation(n_synth)
+    if not n_real or real_ratio <= 0:
+        return [[(0, int(i)) for i in order[b:b + batch_size]] for b in range(0, n_synth, batch_size)]
+    k_real = int(min(max(round(real_ratio * batch_size), 1), batch_size - 1))
+    k_synth = batch_size - k_real
+    n_batches = math.ceil(n_synth / k_synth)
+    rng = np.random.default_rng([seed, epoch, 1])
+    real = np.concatenate([rng.permutation(n_real) for _ in range(math.ceil(n_batches * k_real / n_real))])
+    return [[(0, int(i)) for i in order[b * k_synth:(b + 1) * k_synth]]
+            + [(1, int(i)) for i in real[b * k_real:(b + 1) * k_real]] for b in range(n_batches)]
 
 
 def save_checkpoint(path, state: dict):
@@ -83,7 +137,8 @@ def save_checkpoint(path, state: dict):
 
 
 def build_model(arch: dict) -> SegNet:
-    return SegNet(n_seg=arch.get("n_seg", 3), n_anatomy=arch.get("n_anatomy", 8), width=arch.get("width", 1.0))
+    return SegNet(n_seg=arch.get("n_seg", 3), n_anatomy=arch.get("n_anatomy", 8),
+                  width=arch.get("width", 1.0), depth=arch.get("depth", 0))
 
 
 def load_model(path, device="cpu"):
@@ -115,21 +170,70 @@ def _lr(base, step, total, warmup=20):
     return base * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * t)))
 
 
+class Validator:
+    """Scores a model on real validation images (checkpoint selection, as the paper does:
+    the lowest fuzzy Jaccard loss). Each image is preprocessed as ``evaluate`` does
+    (shorter side = the training size) and its truth resized to match (nearest)."""
+
+    def __init__(self, root, layout="fitz17k", size=256):
+        from .evaluate import read_real
+        self.root, self.items = os.fspath(root), []
+        for sid, rgb, truth in read_real(root, layout):
+            x = D.preprocess(rgb, size)
+            t = cv2.resize(truth, (x.shape[2], x.shape[1]), interpolation=cv2.INTER_NEAREST)
+            self.items.append((sid, torch.from_numpy(x), torch.from_numpy(t.astype(np.int64))))
+        self.classes = ("lesion", "skin", "nonskin") if layout == "fitz17k" else ("lesion",)
+
+    @torch.no_grad()
+    def __call__(self, model, device="cpu") -> dict:
+        """{"loss": mean per-image seg loss, class: mean per-image Jaccard}."""
+        from .metrics import jaccard
+        was_training = model.training
+        model.eval()
+        losses, js = [], {c: [] for c in self.classes}
+        for _, x, t in self.items:
+            logits = model(x[None].to(device))["seg"]
+            target = torch.where(t == 3, torch.full_like(t, D.IGNORE), t)[None].to(device)
+            losses.append(float(seg_jaccard_loss(torch.softmax(logits, 1), target)))
+            pred = logits.argmax(1)[0].cpu().numpy()
+            for k, c in enumerate(self.classes):
+                js[c].append(jaccard(pred == k, t.numpy() == k))
+        model.train(was_training)
+        return {"loss": float(np.mean(losses)), **{c: float(np.mean(v)) for c, v in js.items()}}
+
+
+def best_path(out) -> str:
+    """Where the checkpoint chosen on the validation set goes: model.pt -> model.best.pt."""
+    root, ext = os.path.splitext(os.fspath(out))
+    return f"{root}.best{ext or '.pt'}"
+
+
 def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e-4,
           device="cpu", time_limit=None, resume=False, seed=0, init=None, workers=0,
-          width=1.0, anatomy_weight=1.0, save_every=5.0, augment=True, progress=True,
-          max_steps=None):
+          width=1.0, depth=0, anatomy_weight=1.0, save_every=5.0, augment=True, progress=True,
+          max_steps=None, val=None, val_layout="fitz17k", val_every=None, real_train=None,
+          real_layout="fitz17k", real_ratio=0.25, steps=None):
     """Train and write the checkpoint `out`; returns the final checkpoint dict.
 
-    data: one folder or a list of ``glsynth generate`` folders. time_limit: minutes for
-    this invocation (None: no limit). resume: continue from `out` (its stored settings
-    win over size/batch/lr/width/seed given here). max_steps: stop after this many
-    optimiser steps in this invocation (for tests).
+    data: one folder or a list of ``glsynth generate`` folders (may be empty with
+    ``real_train``). time_limit: minutes for this invocation (None: no limit). resume:
+    continue from `out` (its stored settings win over size/batch/lr/width/seed given
+    here). max_steps: stop after this many optimiser steps in this invocation. steps: the
+    whole run's length in optimiser steps (the learning-rate schedule ends there), instead
+    of ``epochs`` passes over the data.
+    val: a folder of real images (``val_layout``) scored every ``val_every`` steps
+    (default: 8 times an epoch, at most every 250 steps) and at the end; the weights with
+    the lowest validation loss are also written to ``best_path(out)``.
+    real_train: a folder of real training images mixed into every batch at
+    ``real_ratio`` (staged training: ``init`` from a synthetic-pretrained checkpoint
+    with real images only).
     """
     out = os.fspath(out)
-    roots = [os.fspath(d) for d in ([data] if isinstance(data, (str, os.PathLike)) else data)]
+    roots = [os.fspath(d) for d in ([data] if isinstance(data, (str, os.PathLike)) else (data or []))]
     if device == "cuda" and not torch.cuda.is_available():
         raise RuntimeError("--device cuda: CUDA is not available")
+    if not 0 <= real_ratio <= 1:
+        raise ValueError(f"real_ratio must be in [0, 1], got {real_ratio}")
     ck = None
     if os.path.exists(out):
         if not resume:
@@ -140,47 +244,78 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
         h = ck["hparams"]
         size, batch_size, lr, weight_decay = h["size"], h["batch_size"], h["lr"], h["weight_decay"]
         seed, width, anatomy_weight, augment = h["seed"], h["width"], h["anatomy_weight"], h["augment"]
+        depth, real_ratio = h.get("depth", 0), h.get("real_ratio", real_ratio)
+        steps = h.get("steps", steps)
     hparams = {"size": size, "batch_size": batch_size, "lr": lr, "weight_decay": weight_decay,
-               "seed": seed, "width": width, "anatomy_weight": anatomy_weight, "augment": augment}
+               "seed": seed, "width": width, "depth": depth, "anatomy_weight": anatomy_weight,
+               "augment": augment, "real_ratio": real_ratio, "steps": steps}
     torch.manual_seed(seed)
-    ds = TrainSet(roots, size=size, seed=seed, augment=augment)
-    model = SegNet(width=width)
+    real = RealSet(real_train, real_layout, size) if real_train else None
+    ds = TrainSet(roots, size=size, seed=seed, augment=augment, real=real)
+    validator = Validator(val, val_layout, size) if val else None
+    model = SegNet(width=width, depth=depth)
     if ck is None and init:
         init_weights(model, init)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
-    epoch, pos, step, history = 0, 0, 0, []
+    epoch, pos, step, history, val_history, best = 0, 0, 0, [], [], None
     if ck is not None:
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         epoch, pos, step, history = ck["epoch"], ck["batch_in_epoch"], ck["step"], ck["history"]
+        val_history, best = ck.get("val_history", []), ck.get("best")
         log.info("resuming %s at epoch %d, batch %d (step %d)", out, epoch, pos, step)
     model.to(device)
     for st in opt.state.values():
         for k, v in st.items():
             if torch.is_tensor(v) and k != "step":
                 st[k] = v.to(device)
-    n_batches = math.ceil(len(ds) / batch_size)
-    total = epochs * n_batches
+    n_real = len(real) if real else 0
+
+    def plan(e):
+        return epoch_batches(len(ds), n_real, batch_size, real_ratio, seed, e)
+    n_batches = len(plan(0))
+    if steps is not None:
+        if steps < 1:
+            raise ValueError(f"steps must be >= 1, got {steps}")
+        epochs = math.ceil(steps / n_batches)
+    total = epochs * n_batches if steps is None else steps
+    if val_every is None:
+        val_every = max(1, min(250, math.ceil(n_batches / 8)))
     t0, last_save, steps_here = time.time(), time.time(), 0
     stopped = None
     running = {"loss": [], "seg": [], "anatomy": []}
 
     def state(reason):
-        return {"format": FORMAT, "version": 1, "arch": model.arch, "hparams": hparams,
+        return {"format": FORMAT, "version": 2, "arch": model.arch, "hparams": hparams,
                 "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
                 "optimizer": opt.state_dict(), "epoch": epoch, "batch_in_epoch": pos, "step": step,
-                "epochs_planned": epochs, "history": history, "data": roots, "n_samples": len(ds),
+                "epochs_planned": epochs, "history": history, "val_history": val_history,
+                "best": best, "data": roots, "n_samples": len(ds), "n_real": n_real,
+                "real_train": os.fspath(real_train) if real_train else None,
+                "val": os.fspath(val) if val else None,
                 "n_parameters": count_parameters(model), "preprocessing": {
                     "colour_constancy": "shades_of_gray(p=6)", "mean": D.MEAN.tolist(),
                     "std": D.STD.tolist(), "resize": "shorter side = size"},
                 "saved": reason, "torch": torch.__version__}
 
+    def validate():
+        """Score on the validation images; keep the best weights in best_path(out)."""
+        nonlocal best
+        if validator is None or (val_history and val_history[-1]["step"] == step):
+            return
+        r = {"step": step, "epoch": epoch + pos / n_batches, **validator(model, device),
+             "seconds": round(time.time() - t0, 1)}
+        val_history.append(r)
+        if best is None or r["loss"] < best["loss"]:
+            best = dict(r)
+            save_checkpoint(best_path(out), state("best on validation"))
+        log.info("validation at step %d: loss %.4f %s", step, r["loss"],
+                 " ".join(f"{c} {r[c]:.3f}" for c in validator.classes))
+
     from tqdm import tqdm
     final = None
     while epoch < epochs and stopped is None:
-        order = np.random.default_rng([seed, epoch]).permutation(len(ds))
-        batches = [order[b * batch_size:(b + 1) * batch_size] for b in range(n_batches)]
-        sampler = [[(epoch, int(i)) for i in b] for b in batches[pos:]]
+        sampler = [[(epoch, *key) for key in b] for b in plan(epoch)[pos:]]
         loader = torch.utils.data.DataLoader(ds, batch_sampler=sampler, num_workers=workers)
         model.train()
         bar = tqdm(loader, desc=f"epoch {epoch + 1}/{epochs}", initial=pos, total=n_batches,
@@ -198,19 +333,26 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
             running["loss"].append(float(loss.detach()))
             for k in ("seg", "anatomy"):
                 running[k].append(parts.get(k, 0.0))
-            bar.set_postfix(loss=f"{np.mean(running['loss'][-20:]):.3f}")
+            postfix = {"loss": f"{np.mean(running['loss'][-20:]):.3f}"}
+            if best is not None:
+                postfix["val"] = f"{best['loss']:.3f}"
+            bar.set_postfix(postfix)
             now = time.time()
             if time_limit is not None and now - t0 >= time_limit * 60:
                 stopped = "time limit"
             elif max_steps is not None and steps_here >= max_steps:
                 stopped = "max steps"
+            elif step >= total:
+                break  # ``steps`` reached inside the last epoch
             if stopped:
                 break
+            if step % val_every == 0:
+                validate()
             if save_every and now - last_save >= save_every * 60:
                 save_checkpoint(out, state("periodic"))
                 last_save = now
         bar.close()
-        if pos >= n_batches:
+        if pos >= n_batches or step >= total:  # an epoch, or the planned steps, done
             history.append({"epoch": epoch + 1, "step": step,
                             **{k: float(np.mean(v)) if v else None for k, v in running.items()},
                             "seconds": round(time.time() - t0, 1)})
@@ -220,11 +362,13 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
                       f"(seg {history[-1]['seg']:.4f}, anatomy {history[-1]['anatomy']:.4f}) "
                       f"step {step}, {time.time() - t0:.0f} s", flush=True)
             running = {k: [] for k in running}
-            epoch, pos = epoch + 1, 0
+            epoch, pos = (epoch + 1, 0) if pos >= n_batches else (epochs, pos)
+        validate()
         final = state(stopped or "finished")
         save_checkpoint(out, final)
         last_save = time.time()
     if final is None:  # nothing left to do (already finished, or epochs=0)
+        validate()
         final = state("finished")
         save_checkpoint(out, final)
     final["stopped"] = stopped
