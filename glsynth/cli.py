@@ -76,7 +76,8 @@ def main(argv=None):
     p.add_argument("-n", type=int, default=6, help="number of samples")
     p.set_defaults(fn=cmd_show)
     # Commands that live in their own modules register themselves here.
-    for module in ("glsynth.preview", "glsynth.assets.sheets", "glsynth.train.cli"):
+    for module in ("glsynth.preview", "glsynth.assets.sheets", "glsynth.train.cli",
+                   "glsynth.train.sim2real"):
         try:
             mod = __import__(module, fromlist=["register"])
         except ModuleNotFoundError as exc:
