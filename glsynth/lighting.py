@@ -1,4 +1,4 @@
-"""Point lights and Phong materials shared by the GL shader and the torch path."""
+"""Point lights and materials (Phong, skin) shared by the GL shaders and the torch path."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -37,17 +37,35 @@ class PointLight:
                 "diffuse": list(self.diffuse), "specular": list(self.specular)}
 
 
+MODELS = ("phong", "skin")
+
+
 @dataclass(frozen=True)
 class Material:
-    """Phong material: specular colour and shininess exponent (paper: 0.025, 50), and
-    ``wrap`` for skin-like wrap lighting: the diffuse factor is
+    """A surface's reflectance.
+
+    ``model`` "phong" (the paper's): specular colour and shininess exponent (paper:
+    0.025, 50), and ``wrap`` for skin-like wrap lighting: the diffuse factor is
     ``max((n.l + wrap) / (1 + wrap), 0)`` (0 = plain Lambert, the paper's shading;
     about 0.2-0.5 imitates the light that subsurface scattering carries past the
-    terminator). The specular term stays gated by ``n.l > 0``."""
+    terminator). The specular term stays gated by ``n.l > 0``.
+
+    ``model`` "skin" (shaders/skin.frag, glsynth.diff): in linear light, wrap diffuse
+    that is wider and softer in red than in blue, a GGX specular lobe of ``roughness``
+    with Fresnel, sharpened and raised by sebum (``oil`` 0..1 scales the body's
+    oiliness map); each light's ``diffuse`` colour is its intensity for both terms
+    (its ``specular`` and the material's ``specular``/``shininess`` are Phong's). With
+    ``detail``, the body's micro-relief (scaled by ``relief``) and hair, when the mesh
+    carries a SkinSurface."""
 
     specular: tuple = (0.025, 0.025, 0.025)
     shininess: float = 50.0
     wrap: float = 0.0
+    model: str = "phong"
+    roughness: float = 0.4
+    oil: float = 0.5
+    relief: float = 1.0
+    detail: bool = True
 
     def __post_init__(self):
         object.__setattr__(self, "specular", _rgb(self.specular, "material specular"))
@@ -57,9 +75,21 @@ class Material:
         if not (np.isfinite(self.wrap) and 0 <= self.wrap <= 1):
             raise ValueError(f"material wrap must be in [0, 1], got {self.wrap}")
         object.__setattr__(self, "wrap", float(self.wrap))
+        if self.model not in MODELS:
+            raise ValueError(f"material model must be one of {MODELS}, got {self.model!r}")
+        for name, lo, hi in (("roughness", 0.02, 1.0), ("oil", 0.0, 1.0), ("relief", 0.0, 10.0)):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and lo <= value <= hi):
+                raise ValueError(f"material {name} must be in [{lo}, {hi}], got {value}")
+            object.__setattr__(self, name, float(value))
+        object.__setattr__(self, "detail", bool(self.detail))
 
     def to_dict(self):
-        return {"specular": list(self.specular), "shininess": self.shininess, "wrap": self.wrap}
+        out = {"specular": list(self.specular), "shininess": self.shininess, "wrap": self.wrap,
+               "model": self.model}
+        if self.model == "skin":
+            out.update(roughness=self.roughness, oil=self.oil, relief=self.relief, detail=self.detail)
+        return out
 
 
 MAX_LIGHTS = 8

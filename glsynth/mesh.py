@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
+from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -20,15 +21,35 @@ class MeshError(ValueError):
     """A mesh (or a mesh file) is unusable; the message names the file and the problem."""
 
 
+@dataclass(frozen=True)
+class SkinSurface:
+    """What the skin shading's micro-detail needs from a body (shaders/skin.frag).
+
+    params: H x W x 4 uint8 map in the body's UV space: relief, pores, hair density
+    (0 none, 0.25 vellus only, up to 1 dense terminal hair) and oiliness, each 0..255.
+    weight: H x W uint8 detail weight at the colour texture's resolution (255 healthy
+    skin, 0 non-skin; uploaded as the colour texture's alpha), or None for 255.
+    hair_coords: (F, 3, 2) float32 hair-flow coordinates of each face's corners (scene
+    units; +s along the hairs), or None for no hair. hair_rgb: sRGB colour of terminal
+    hair. unit: scene units per metre.
+    """
+    params: np.ndarray
+    weight: np.ndarray | None = None
+    hair_coords: np.ndarray | None = None
+    hair_rgb: tuple = (60, 45, 35)
+    unit: float = 1.0
+
+
 class Mesh:
     """vertices (V,3) float, faces (F,3) int, uvs (T,2) float, face_uvs (F,3) int,
     texture HxWx3 uint8 (row 0 = top of the image, v = 1 at the top), plus optional
-    named extra textures (label maps) in ``textures``.
+    named extra textures (label maps) in ``textures`` and the skin shading's inputs in
+    ``skin`` (a SkinSurface).
     """
 
     def __init__(self, vertices, faces, uvs=None, face_uvs=None, texture=None,
                  textures=None, vertex_labels=None, vertex_colors=None, name="mesh",
-                 require_texture=True):
+                 require_texture=True, skin=None):
         self.name = str(name)
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces)
@@ -72,6 +93,11 @@ class Mesh:
         else:
             self.texture = _as_rgb_texture(texture, self.name)
         self.textures = dict(textures or {})
+        self.skin = skin
+        if skin is not None and skin.hair_coords is not None and \
+                np.shape(skin.hair_coords) != (len(self.faces), 3, 2):
+            raise MeshError(f"{self.name}: hair_coords must be ({len(self.faces)}, 3, 2), "
+                            f"got {np.shape(skin.hair_coords)}")
         self.vertex_labels = None if vertex_labels is None else np.asarray(vertex_labels)
         self.vertex_colors = None if vertex_colors is None else np.asarray(vertex_colors)
         if self.vertex_labels is not None and len(self.vertex_labels) != len(v):
@@ -181,7 +207,7 @@ class Mesh:
         args = dict(vertices=self.vertices, faces=self.faces, uvs=self.uvs,
                     face_uvs=self.face_uvs, texture=self.texture, textures=self.textures,
                     vertex_labels=self.vertex_labels, vertex_colors=self.vertex_colors,
-                    name=self.name)
+                    name=self.name, skin=self.skin)
         args.update(changes)
         return Mesh(**args)
 

@@ -39,6 +39,12 @@ flat out mat3 g_normal;
 flat out mat3x2 g_uv;
 flat out vec3 g_depth;
 flat out int g_face;
+#ifdef HAIR_COORDS
+in vec2 in_h0;
+in vec2 in_h1;
+in vec2 in_h2;
+flat out mat3x2 g_hair;   // hair-flow coordinates of the corners (skin.frag)
+#endif
 
 // Sets every output but gl_Position and g_depth; returns this corner's UV.
 vec2 emit_face() {
@@ -48,6 +54,9 @@ vec2 emit_face() {
     g_normal = mat3(in_n0, in_n1, in_n2);
     g_uv = mat3x2(in_uv0, in_uv1, in_uv2);
     g_face = gl_VertexID / 3;
+#ifdef HAIR_COORDS
+    g_hair = mat3x2(in_h0, in_h1, in_h2);
+#endif
     return g_uv[k];
 }
 #endif

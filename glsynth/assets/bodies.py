@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..mesh import Mesh
-from . import anatomy, skin
+from ..mesh import Mesh, SkinSurface
+from . import anatomy, detail, hairflow, skin
 from .colour import fitzpatrick_from_ita
 
 log = logging.getLogger(__name__)
@@ -166,7 +166,17 @@ def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size) -> d
     return {"vertices": v, "faces": st["faces"], "uvs": st["uvs"], "face_uvs": st["face_uvs"],
             "texture": paint.texture, "nonskin": paint.nonskin, "features": paint.features,
             "anatomy": st["labels"], "nevi": np.asarray(paint.nevi, np.int64).reshape(-1, 4),
+            "skin_params": paint.params, "skin_weight": paint.weight,
+            "hair_coords": hairflow.hair_coordinates(v, st["faces"], st["labels"]),
             "meta": meta}
+
+
+def body_hair_rgb(scalp_rgb) -> tuple:
+    """Body hair is a little darker and less saturated than scalp hair (and grey hair
+    stays grey)."""
+    c = np.asarray(scalp_rgb, np.float64)
+    grey = c.mean()
+    return tuple(int(round(x)) for x in np.clip(0.85 * (grey + 0.8 * (c - grey)), 0, 255))
 
 
 def _pose_parameters(model, name):
@@ -228,7 +238,7 @@ def _anny_version() -> str:
 @lru_cache(maxsize=1)
 def _code_hash() -> str:
     h = hashlib.sha256()
-    for mod in (anatomy, skin):
+    for mod in (anatomy, skin, hairflow, detail):
         h.update(Path(mod.__file__).read_bytes())
     h.update(Path(__file__).read_bytes())
     return h.hexdigest()[:16]
@@ -268,8 +278,12 @@ def _load(path: Path) -> Body:
 
 def _from_arrays(a: dict) -> Body:
     meta = a["meta"]
+    skin_surface = None
+    if "skin_params" in a:
+        skin_surface = SkinSurface(a["skin_params"], a["skin_weight"], a["hair_coords"],
+                                   body_hair_rgb(meta["look"]["hair_rgb"]))
     mesh = Mesh(a["vertices"], a["faces"], uvs=a["uvs"], face_uvs=a["face_uvs"],
                 texture=a["texture"], textures={"nonskin": a["nonskin"], "features": a["features"]},
-                vertex_labels=a["anatomy"], name=f"anny-body-{meta['seed']}")
+                vertex_labels=a["anatomy"], name=f"anny-body-{meta['seed']}", skin=skin_surface)
     return Body(mesh=mesh, nonskin=a["nonskin"], anatomy=a["anatomy"],
                 nevi=[list(map(int, b)) for b in a["nevi"]], meta=meta)

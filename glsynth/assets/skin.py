@@ -208,13 +208,18 @@ class Look:
     receding: float = 0.0          # 0..1, male hairline recession
     hair_texture: str = "straight"  # "straight" (strands) or "coily"
     seed: int = 0
+    male: bool = False
+    age: float = 0.7               # anny's age parameter (1/3 child, 2/3 young adult, 1 old)
+    hirsute: float = 0.3           # 0..1, amount of terminal body hair
+    oily: float = 0.5              # 0..1, sebum production
 
     def to_dict(self) -> dict:
         return {"ita": self.ita, "hair": self.hair, "hair_rgb": list(self.hair_rgb),
                 "iris_rgb": list(self.iris_rgb), "clothing": dict(self.clothing),
                 "n_nevi": self.n_nevi, "freckles": self.freckles,
                 "receding": self.receding, "hair_texture": self.hair_texture,
-                "seed": self.seed}
+                "seed": self.seed, "male": self.male, "age": self.age,
+                "hirsute": self.hirsute, "oily": self.oily}
 
 
 def normalise_clothing(clothing, female: bool, rng: np.random.Generator) -> dict:
@@ -274,7 +279,9 @@ def sample_look(rng: np.random.Generator, ita: float, female: bool, age: float,
         receding=0.0 if female else float(rng.uniform(0, 1) ** 2),
         hair_texture="coily" if rng.random() < (0.8 if ita < -20 else 0.1 if ita < 20 else 0.02)
         else "straight",
-        seed=int(rng.integers(2 ** 31)))
+        seed=int(rng.integers(2 ** 31)), male=not female, age=float(age),
+        hirsute=float(rng.uniform(0.25, 1.0) if not female else rng.uniform(0.0, 0.3)),
+        oily=float(np.clip(rng.uniform(0.2, 1.0) - 0.5 * old, 0, 1)))
 
 
 # ---- painting ---------------------------------------------------------------------------
@@ -284,6 +291,8 @@ class Paint:
     nonskin: np.ndarray      # HxW uint8, 1 = not skin
     nevi: list               # [x0, y0, x1, y1] texel boxes (x1, y1 exclusive)
     features: np.ndarray     # HxW uint8, 1 = lips / areolae / nails / nevi (skin, not "healthy")
+    params: np.ndarray       # (H/4)x(W/4)x4 uint8 skin parameters (glsynth.mesh.SkinSurface)
+    weight: np.ndarray       # HxW uint8 skin detail weight (255 healthy skin, 0 non-skin)
 
 
 class _Texels:
@@ -385,9 +394,62 @@ class _Painter:
         rgb = skin_rgb * (1 - self.alpha[:, None]) + self.rgb_over
         nonskin = (self.region > 0.5).astype(np.uint8)
         tex = np.clip(np.rint(rgb * 255), 0, 255).astype(np.uint8)
-        texture, nonskin_img, feat_img = _fill_uncovered(
-            tx, tex, nonskin, (features > 0.5).astype(np.uint8))
-        return Paint(texture, nonskin_img, boxes, feat_img)
+        params, weight = self.detail_params(nevi_mask)
+        texture, nonskin_img, feat_img, params_img, weight_img = _fill_uncovered(
+            tx, tex, nonskin, (features > 0.5).astype(np.uint8), params, weight)
+        size = tx.size // 4
+        params_img = cv2.resize(params_img, (size, size), interpolation=cv2.INTER_AREA)
+        return Paint(texture, nonskin_img, boxes, feat_img, params_img, weight_img)
+
+    # ---- micro-detail parameters --------------------------------------------------------
+    def detail_params(self, nevi_mask):
+        """Per texel: the skin shading's relief, pore, hair-density and oiliness levels
+        (uint8 RGBA, see glsynth.mesh.SkinSurface) and the detail weight (uint8: 255 on
+        healthy skin, less on lips, areolae, nevi and nails, 0 under non-skin paint)."""
+        tx, j, s, look = self.tx, self.j, self.scale, self.look
+        p, n, ch = tx.pos, tx.nrm, tx.ch
+        old = float(np.clip((look.age - 0.75) / 0.25, 0, 1))
+        eye = 0.5 * (j["eye.L"] + j["eye.R"])
+        face = ch["head"] * _smoothstep(-0.2, 0.3, n[:, 2]) * (p[:, 1] < eye[1] + 0.07 * s)
+        forehead = _gauss(p, eye + np.array([0, 0.045, 0.015]) * s, 0.03 * s)
+        nose = _gauss(p, eye + np.array([0, -0.035, 0.04]) * s, 0.018 * s)
+        chin = _gauss(p, eye + np.array([0, -0.12, 0.02]) * s, 0.025 * s)
+        tzone = np.clip(forehead + nose + 0.7 * chin, 0, 1) * ch["head"]
+        palms = self._palms() + ch["feet"] * _smoothstep(-0.3, -0.7, n[:, 1])
+        joints = np.zeros(len(p), np.float32)
+        for side in ("L", "R"):
+            for name, r in (("lowerarm01", 0.04), ("lowerleg01", 0.05)):
+                joints += _gauss(p, j[f"{name}.{side}"], r * s)
+        dorsal_hand = ch["hands"] * (1 - palms)
+        relief = (0.5 + 0.35 * dorsal_hand + 0.35 * np.clip(joints, 0, 1) + 0.25 * palms
+                  - 0.2 * face + 0.3 * old + 0.15 * ch["feet"])
+        pores = 0.22 + 0.5 * face + 0.5 * tzone + 0.25 * ch["torso"] * (1 - ch["head"]) - 0.2 * palms
+        # hair: 0.25 is vellus alone; terminal hair above it, by region and sex
+        h = look.hirsute
+        forearm = np.isin(tx.label, (13, 14)).astype(np.float32)
+        upperarm = np.isin(tx.label, (11, 12)).astype(np.float32)
+        shin = np.isin(tx.label, (7, 8)).astype(np.float32)
+        thigh = np.isin(tx.label, (5, 6)).astype(np.float32)
+        trunk = np.isin(tx.label, (2, 3)).astype(np.float32)
+        terminal = (0.8 * forearm + 0.35 * upperarm + 0.8 * shin + 0.45 * thigh
+                    + 0.4 * dorsal_hand + 0.35 * ch["feet"] * (1 - palms)) * h
+        if look.male:
+            front = _smoothstep(-0.2, 0.4, n[:, 2])
+            terminal += trunk * h * (0.8 * front + 0.4 * (1 - front)) * (h > 0.5)
+            beard = face * (p[:, 1] < eye[1] - 0.05 * s) * _smoothstep(0.0, 0.2, n[:, 2])
+            terminal += 0.9 * beard * (0.3 + 0.7 * h)
+        hair = np.where(palms > 0.5, 0.0, 0.25 + 0.75 * np.clip(terminal, 0, 1))
+        oil = (0.25 + 0.65 * tzone + 0.2 * face + 0.2 * ch["torso"] * (1 - ch["head"])
+               - 0.15 * (shin + ch["feet"])) * (0.5 + look.oily)
+        size = tx.size
+        lips = tx.sample(_mpfb_mask("lips", size))
+        nails = np.maximum(tx.sample(_mpfb_mask("fingernails", size)), tx.sample(_mpfb_mask("toenails", size)))
+        areolae = tx.sample(_mpfb_mask("aureolae", size))
+        hair = hair * (1 - np.clip(lips + nails, 0, 1))
+        params = np.stack([relief, pores, hair, oil], 1)
+        params = np.clip(np.rint(np.clip(params, 0, 1) * 255), 0, 255).astype(np.uint8)
+        weight = (1 - self.alpha) * (1 - 0.6 * lips) * (1 - nails) * (1 - 0.3 * areolae) * (1 - 0.5 * nevi_mask)
+        return params, np.clip(np.rint(weight * 255), 0, 255).astype(np.uint8)
 
     # ---- skin --------------------------------------------------------------------------
     def skin(self):
@@ -737,7 +799,7 @@ def _calibrate_ita(lab, target, n=200_000):
     return 0.5 * (lo + hi)
 
 
-def _fill_uncovered(tx: _Texels, tex, nonskin, features):
+def _fill_uncovered(tx: _Texels, *per_texel):
     """Scatter the texel values and give every uncovered texel the value of its nearest
     covered texel (padding across UV island borders for bilinear / mipmapped sampling)."""
     size = tx.size
@@ -746,7 +808,7 @@ def _fill_uncovered(tx: _Texels, tex, nonskin, features):
     covered = covered.reshape(size, size)
     _, (ri, ci) = ndimage.distance_transform_edt(~covered, return_indices=True)
     out = []
-    for values in (tex, nonskin, features):
+    for values in per_texel:
         img = tx.scatter(values)
         out.append(np.ascontiguousarray(img[ri, ci]))
     return out

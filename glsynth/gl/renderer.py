@@ -25,6 +25,9 @@ log = logging.getLogger(__name__)
 PASSES = ("gbuffer", "rgb", "labels")
 GBUFFER_LAYERS = ("face_id", "depth", "bary", "uv")
 MAX_LABEL_MAPS = 4  # one four-channel uint16 target
+# texture units: 0 colour, 1 shadow map, 2-5 label maps, then the skin shading's
+# parameter map, relief tile and hair tile
+SKIN_UNITS = (6, 7, 8)
 MAX_SUPERSAMPLE = 8
 
 
@@ -36,6 +39,18 @@ def _half_float_texels(texture):
     faster than converting and dividing; no wider temporary, so an 8192^2 texture
     needs no float32 or index copy)."""
     return cv2.LUT(np.ascontiguousarray(texture), _U8_TO_HALF.reshape(256, 1)).tobytes()
+
+
+def _rgba(mesh) -> np.ndarray:
+    """The colour texture with the skin detail weight as alpha (255 without one)."""
+    tex = mesh.texture
+    weight = None if mesh.skin is None else mesh.skin.weight
+    if weight is None:
+        weight = np.full(tex.shape[:2], 255, np.uint8)
+    elif np.shape(weight) != tex.shape[:2]:
+        raise ValueError(f"{mesh.name}: skin detail weight {np.shape(weight)} does not match the "
+                         f"texture {tex.shape[:2]}")
+    return cv2.merge([tex[..., 0], tex[..., 1], tex[..., 2], np.asarray(weight, np.uint8)])
 
 
 def _label_ids(arr: np.ndarray, what: str) -> np.ndarray:
@@ -77,10 +92,15 @@ class _MeshOnGPU:
                                uv.reshape(n, 6)], axis=1).astype(np.float32)
         _ = mesh.bounds, mesh.closed_orientation, mesh._face_longest_edge  # for clip planes
         # Half floats: llvmpipe filters 8-bit textures with 8-bit weights (up to ~2/255
-        # off the torch path); float textures are filtered in float.
-        texels = None if mesh.texture is None else _half_float_texels(mesh.texture)
+        # off the torch path); float textures are filtered in float. Alpha carries the
+        # skin shading's detail weight (SkinSurface.weight; 1 without one).
+        texels = None if mesh.texture is None else _half_float_texels(_rgba(mesh))
+        skin = mesh.skin
+        hair = None
+        if skin is not None and skin.hair_coords is not None:  # every corner carries its face's
+            hair = np.repeat(np.asarray(skin.hair_coords, np.float32).reshape(n, 6), 3, axis=0).tobytes()
         return {"corners": np.repeat(face, 3, axis=0).tobytes(), "count": 3 * n, "texels": texels,
-                "chunks": _MeshOnGPU._chunk_boxes(corners)}
+                "chunks": _MeshOnGPU._chunk_boxes(corners), "hair": hair}
 
     @classmethod
     def _chunk_boxes(cls, corners):
@@ -121,9 +141,16 @@ class _MeshOnGPU:
         self.texture = None
         if mesh.texture is not None:
             h, w = mesh.texture.shape[:2]
-            self.texture = ctx.texture((w, h), 3, staged["texels"], dtype="f2", alignment=2)
+            self.texture = ctx.texture((w, h), 4, staged["texels"], dtype="f2", alignment=2)
             self.texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self.texture.repeat_x = self.texture.repeat_y = False  # clamp, like grid_sample 'border'
+        self.hair_vbo = ctx.buffer(staged["hair"]) if staged.get("hair") else None
+        self.params = None
+        if mesh.skin is not None:
+            prm = np.ascontiguousarray(mesh.skin.params, np.uint8)
+            self.params = ctx.texture((prm.shape[1], prm.shape[0]), 4, prm.tobytes())
+            self.params.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self.params.repeat_x = self.params.repeat_y = False
 
     def vao(self, name, prog):
         vao = self.vaos.get(name)
@@ -131,7 +158,10 @@ class _MeshOnGPU:
             # skip unused attributes so that each program reads only what it needs
             attrs = [a for a in self._LAYOUT if a in prog]
             fmt = " ".join(f if a in attrs else f.replace("f", "x4") for a, f in self._LAYOUT.items())
-            vao = self.vaos[name] = self.ctx.vertex_array(prog, [(self.vbo, fmt, *attrs)])
+            buffers = [(self.vbo, fmt, *attrs)]
+            if "in_h0" in prog:  # hair-flow coordinates live in a buffer of their own
+                buffers.append((self.hair_vbo, "2f 2f 2f", "in_h0", "in_h1", "in_h2"))
+            vao = self.vaos[name] = self.ctx.vertex_array(prog, buffers)
         return vao
 
     def clip_planes(self, mesh: Mesh, camera: Camera) -> tuple:
@@ -176,8 +206,9 @@ class _MeshOnGPU:
         for vao in self.vaos.values():
             vao.release()
         self.vbo.release()
-        if self.texture is not None:
-            self.texture.release()
+        for obj in (self.texture, self.hair_vbo, self.params):
+            if obj is not None:
+                obj.release()
 
 
 class Renderer:
@@ -218,6 +249,7 @@ class Renderer:
         self._staged = {}      # id(mesh) -> (weakref(mesh), _MeshOnGPU.staged(mesh))
         self._label_tex = {}   # id(array) -> (array, texture)
         self._fbos = {}
+        self._tiles = None     # skin detail tiles (_detail_tiles)
 
     @staticmethod
     def _gbuffer_kind(labels: bool, bary_uv: bool) -> str:
@@ -257,6 +289,43 @@ class Renderer:
                 prog["u_shadow_map"] = 1
             self.programs[name] = prog
         return name
+
+    def _skin(self, n_lights: int, shadows: bool, detail: bool, hair: bool) -> tuple:
+        """Key of the skin shading program for these settings (skin.frag), compiled on
+        first use."""
+        key = ("skin", n_lights, shadows, detail, hair)
+        if key not in self.programs:
+            frag = with_defines(shader_source("skin.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows,
+                                DETAIL=detail, HAIR=hair)
+            vert = shader_source("mesh.vert")
+            vert = with_defines(vert, SHADOWS=shadows, **({"HAIR_COORDS": 1} if hair else {}))
+            prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
+            for name, unit in (("u_shadow_map", 1), ("u_params", SKIN_UNITS[0]),
+                               ("u_relief", SKIN_UNITS[1]), ("u_hair", SKIN_UNITS[2])):
+                if name in prog:
+                    prog[name] = unit
+            self.programs[key] = prog
+        return key
+
+    def _detail_tiles(self):
+        """The relief and hair tiles (glsynth.assets.detail) as repeating, mipmapped
+        textures, made on first use; and a 1x1 skin parameter map for meshes without
+        a SkinSurface."""
+        if self._tiles is None:
+            from ..assets.detail import DEFAULT_PARAMS, detail_tiles
+            t = detail_tiles()
+            out = {}
+            for name, img in (("relief", t.relief), ("hair", t.hair)):
+                tex = self.ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(img).tobytes())
+                tex.build_mipmaps()
+                tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+                tex.repeat_x = tex.repeat_y = True
+                out[name] = tex
+            out["params"] = self.ctx.texture((1, 1), 4, np.asarray(DEFAULT_PARAMS, np.uint8).tobytes())
+            out["tiles"] = t
+            out["pore_mean"] = float(t.relief[..., 3].mean() / 255.0)
+            self._tiles = out
+        return self._tiles
 
     @property
     def info(self) -> dict:
@@ -478,13 +547,44 @@ class Renderer:
         (when ``shadows`` and the main light is away from the look-at point) the main
         light's shadow map set up."""
         lights = check_lights([PointLight(camera.eye)] if lights is None else lights)
+        material = material or Material()
         target = np.asarray(camera.target)
         shadows = bool(shadows and np.linalg.norm(np.asarray(lights[0].position) - target) >= 1e-9)
-        name = self._phong(len(lights), shadows)
+        if material.model == "skin":
+            detail = material.detail
+            name = self._skin(len(lights), shadows, detail, detail and gpu.hair_vbo is not None)
+        else:
+            name = self._phong(len(lights), shadows)
         if shadows:
             self._shadow_map(gpu, mesh, camera, lights[0], self.programs[name])
         self._set_shading(self.programs[name], gpu, camera, lights, material)
+        if material.model == "skin":
+            self._set_skin(self.programs[name], gpu, mesh, camera, material)
         return name
+
+    def _set_skin(self, prog, gpu, mesh, camera, material):
+        """The skin program's material and (with detail) its textures and scales."""
+        for key, value in (("u_roughness", material.roughness), ("u_oil", material.oil),
+                           ("u_relief_amount", material.relief),
+                           ("u_pixel_angle", 1.0 / float(camera.intrinsics()[1, 1]))):
+            if key in prog:
+                prog[key].value = value
+        if "u_relief" not in prog:
+            return
+        tiles = self._detail_tiles()
+        unit = mesh.skin.unit if mesh.skin is not None else 1.0
+        (gpu.params or tiles["params"]).use(SKIN_UNITS[0])
+        tiles["relief"].use(SKIN_UNITS[1])
+        t = tiles["tiles"]
+        prog["u_relief_period"].value = t.relief_period * unit
+        prog["u_relief_size"].value = float(t.relief.shape[0])
+        prog["u_pore_mean"].value = tiles["pore_mean"]
+        if "u_hair" in prog:
+            tiles["hair"].use(SKIN_UNITS[2])
+            prog["u_hair_period"].value = t.hair_period * unit
+            prog["u_hair_size"].value = float(t.hair.shape[0])
+            prog["u_unit"].value = unit
+            prog["u_hair_rgb"].value = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
 
     def _shadow_map(self, gpu, mesh, camera, light, prog):
         """Render ``light``'s shadow map and point the Phong program ``prog`` at it."""
@@ -722,6 +822,10 @@ class Renderer:
         for fbo in self._fbos.values():
             self._release_fbo(fbo)
         self._fbos.clear()
+        if self._tiles is not None:
+            for name in ("relief", "hair", "params"):
+                self._tiles[name].release()
+            self._tiles = None
 
     def close(self):
         """Release every GL object this renderer made (``release`` and its programs)

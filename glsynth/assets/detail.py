@@ -1,0 +1,191 @@
+"""Tileable skin micro-detail: the relief of the skin surface and body hair, at the scale of
+a tenth of a millimetre, independent of any body texture's resolution.
+
+The shader (``shaders/skin.glsl``) samples two periodic tiles with mipmaps, so that far
+views see their average and close-ups their structure:
+
+* the **relief tile** (``RELIEF_PERIOD`` metres square) holds the skin's microrelief: a
+  network of primary furrows (the rhombic/polygonal "glyphic" pattern, cells ~0.7 mm)
+  and finer secondary furrows inside the cells, pores at furrow junctions, and a fine
+  roughness. Channels: R, G the height slope along the tile's x and y (``SLOPE_RANGE``
+  maps to 0..255), B the relative albedo change (darker furrows, melanin speckle; mean
+  0 over the tile, ``ALBEDO_RANGE`` maps to 0..255), A the pore opening (0..1);
+  the shader projects it on the surface three times (triplanar, from 3D positions), so it
+  needs no UVs and has no seams.
+* the **hair tile** (``HAIR_PERIOD`` metres square) holds hair strands lying along the
+  tile's +x (the hair-flow direction, see :func:`hair_coordinates`), as coverage in four
+  groups: R, G terminal hair (long, thick), B, A vellus hair (short, fine). A body's hair
+  density map selects how many groups show, so density changes without aliasing
+  (mipmaps average coverage, which is exactly what a far view should see).
+
+Both are made from a seed with numpy/OpenCV in about a second and kept per process.
+Heights and sizes are in micrometres, from the dermatology literature's orders of
+magnitude: primary furrows 20-100 um deep and 0.2-1 mm apart, follicular openings
+50-150 um, terminal hairs 50-100 um thick and vellus hairs under 30 um.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+RELIEF_PERIOD = 0.008     # metres covered by one relief tile
+RELIEF_SIZE = 1024        # texels (7.8 um each)
+HAIR_PERIOD = 0.016       # metres covered by one hair tile
+HAIR_SIZE = 2048          # texels (7.8 um each)
+SLOPE_RANGE = 1.5         # |dh/dx| stored in the relief tile's R, G (0..255 <-> -1.5..1.5)
+ALBEDO_RANGE = 0.5        # relative albedo change stored in its B (0..255 <-> -0.5..0.5)
+DETAIL_VERSION = 1        # part of the body cache key: bump when the tiles change
+# skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
+# only, moderate sebum (RGBA: relief, pores, hair density, oiliness)
+DEFAULT_PARAMS = (140, 80, 64, 100)
+
+
+@dataclass(frozen=True)
+class DetailTiles:
+    """The two tiles (uint8 RGBA, row 0 = tile y 0) and their physical periods."""
+    relief: np.ndarray
+    hair: np.ndarray
+    relief_period: float = RELIEF_PERIOD
+    hair_period: float = HAIR_PERIOD
+
+
+def _periodic_noise(rng, size, feature_px):
+    """Zero-mean, unit-std periodic noise with features about ``feature_px`` texels wide
+    (white noise low-passed with a Gaussian in the Fourier domain, so it tiles exactly)."""
+    white = rng.standard_normal((size, size))
+    f = np.fft.fftfreq(size)
+    k2 = f[:, None] ** 2 + f[None, :] ** 2
+    sigma = 1.0 / (np.pi * max(feature_px, 1e-3))
+    out = np.real(np.fft.ifft2(np.fft.fft2(white) * np.exp(-k2 / (2 * sigma ** 2))))
+    return ((out - out.mean()) / (out.std() + 1e-12)).astype(np.float32)
+
+
+def _wrap_blur(img, sigma):
+    """Gaussian blur of a periodic image (OpenCV has no wrapping border for it)."""
+    pad = int(np.ceil(4 * sigma))
+    big = np.pad(img, pad, mode="wrap")
+    return cv2.GaussianBlur(big, (0, 0), sigma)[pad:-pad, pad:-pad]
+
+
+# Line directions (a, b) whose lines a x + b y = const tile a square exactly.
+_DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1), (2, 1), (1, 2), (2, -1), (1, -2))
+
+
+def _line_family(rng, size, spacing_px, direction, warp, fade):
+    """Distance (texels) to the nearest line of a family of wavy, parallel lines that tile
+    the square (lines a x + b y = k size / m, their phase bent by periodic noise of
+    ``warp`` line spacings), and a strength in [0, 1] that fades lines in and out
+    (``fade``: about the fraction of their length missing)."""
+    a, b = direction
+    norm = np.hypot(a, b)
+    m = max(1, int(round(size / (spacing_px * norm))))   # lines per tile along the normal
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32) + 0.5
+    phase = m * (a * xx + b * yy) / size + warp * _periodic_noise(rng, size, 2.5 * spacing_px)
+    dist = np.abs(phase - np.round(phase)) * size / (m * norm)
+    strength = np.clip(1.5 * _periodic_noise(rng, size, 3 * spacing_px) + 2.0 * (0.5 - fade) + 0.5, 0, 1)
+    return dist, strength
+
+
+def _furrows(rng, size, um, spacing_um, depth_um, width_um, n_families, fade):
+    """Height (um, <= 0) of crossing families of furrows: skin's rhombic microrelief."""
+    first = int(rng.integers(len(_DIRECTIONS)))
+    picks = [first] + list(rng.permutation([i for i in range(len(_DIRECTIONS)) if i != first]))
+    h = np.zeros((size, size), np.float32)
+    for k, i in enumerate(picks[:n_families]):
+        dist, strength = _line_family(rng, size, spacing_um / um * rng.uniform(0.8, 1.25),
+                                      _DIRECTIONS[i], 0.35, fade)
+        depth = depth_um * (1.0 if k < 2 else 0.6)       # two main directions, a weaker third
+        h = np.minimum(h, -depth * strength * np.clip(1 - dist / (width_um / um), 0, 1) ** 1.5)
+    return h
+
+
+def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
+    rng = np.random.default_rng([seed, 1])
+    um = period * 1e6 / size                                        # micrometres per texel
+    # primary furrows: families of lines ~0.6 mm apart crossing into rhombi, 40 um deep,
+    # V-shaped ~70 um across; secondary furrows ~0.2 mm apart, 10 um deep
+    primary = _furrows(rng, size, um, 600.0, 40.0, 35.0, 3, 0.25)
+    secondary = _furrows(rng, size, um, 200.0, 10.0, 14.0, 3, 0.45)
+    # pores (follicular openings, 40-60 um across) on a jittered ~0.9 mm grid, half kept
+    pores = np.zeros((size, size), np.float32)
+    g = int(round(period / 0.0009))
+    for i in range(g):
+        for j in range(g):
+            if rng.random() < 0.5:
+                continue
+            cy, cx = (np.array([i, j]) + 0.5 + rng.uniform(-0.4, 0.4, 2)) * size / g
+            r = rng.uniform(20.0, 30.0) / um
+            for oy in (-size, 0, size):
+                for ox in (-size, 0, size):
+                    cv2.circle(pores, (int(round((cx + ox) * 16)), int(round((cy + oy) * 16))),
+                               int(round(r * 16)), 1.0, -1, cv2.LINE_AA, shift=4)
+    pores = _wrap_blur(pores, 6.0 / um)
+    # fine roughness: 2 um bumps ~25 um wide
+    rough = 2.0 * _periodic_noise(rng, size, 25.0 / um)
+    height = primary + secondary + rough - 25.0 * pores               # micrometres
+    gy = (np.roll(height, -1, 0) - np.roll(height, 1, 0)) / (2 * um)  # slope (um / um)
+    gx = (np.roll(height, -1, 1) - np.roll(height, 1, 1)) / (2 * um)
+    # albedo: furrows a little darker (shadowed, thinner stratum corneum over them) and
+    # melanin speckle (+-5% in patches ~0.1-0.3 mm); mean 0 over the tile
+    cavity = np.clip(-(primary + secondary) / 40.0, 0, 1)
+    speckle = 0.6 * _periodic_noise(rng, size, 60.0 / um) + 0.4 * _periodic_noise(rng, size, 180.0 / um)
+    shade = -0.25 * cavity + 0.05 * speckle
+    shade -= shade.mean()
+    enc = lambda s: np.clip(np.rint((s / SLOPE_RANGE * 0.5 + 0.5) * 255), 0, 255)
+    tile = np.stack([enc(gx), enc(gy), np.clip(np.rint((shade / ALBEDO_RANGE * 0.5 + 0.5) * 255), 0, 255),
+                     np.rint(np.clip(pores, 0, 1) * 255)], -1)
+    return tile.astype(np.uint8)
+
+
+def _draw_strands(canvas, rng, n, length_mm, width_um, spread_deg, curl, um, period_px):
+    """Tapered, slightly curved strands lying along +x, wrapped around the tile."""
+    size = canvas.shape[0]
+    for _ in range(n):
+        x0, y0 = rng.uniform(0, size, 2)
+        length = float(np.exp(rng.uniform(np.log(length_mm[0]), np.log(length_mm[1])))) * 1000 / um
+        angle = np.radians(rng.normal(0, spread_deg))
+        bend = rng.normal(0, curl)
+        width = rng.uniform(*width_um) / um
+        k = max(4, int(length / (3 * max(width, 1))))
+        t = np.linspace(0, 1, k + 1)
+        a = angle + bend * t
+        xs = x0 + np.cumsum(np.r_[0, np.cos(a[:-1])]) * length / k
+        ys = y0 + np.cumsum(np.r_[0, np.sin(a[:-1])]) * length / k
+        taper = np.clip(1.2 - t, 0.35, 1.0)                          # thinner towards the tip
+        for ox in (-size, 0, size):
+            for oy in (-size, 0, size):
+                for i in range(k):
+                    p = (int(round((xs[i] + ox) * 16)), int(round((ys[i] + oy) * 16)))
+                    q = (int(round((xs[i + 1] + ox) * 16)), int(round((ys[i + 1] + oy) * 16)))
+                    th = max(1, int(round(width * taper[i])))
+                    cv2.line(canvas, p, q, 255, th, cv2.LINE_AA, shift=4)
+
+
+def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
+    rng = np.random.default_rng([seed, 2])
+    um = period * 1e6 / size
+    area_cm2 = (period * 100) ** 2
+    groups = []
+    for g in range(2):   # terminal: ~8 hairs / cm2 per group, 3-12 mm long, 50-90 um thick
+        c = np.zeros((size, size), np.uint8)
+        _draw_strands(c, rng, int(8 * area_cm2), (3.0, 12.0), (50, 90), 14, 0.15, um, size)
+        groups.append(c)
+    for g in range(2):   # vellus: ~40 hairs / cm2 per group, 0.6-2.5 mm, 15-30 um
+        c = np.zeros((size, size), np.uint8)
+        _draw_strands(c, rng, int(40 * area_cm2), (0.6, 2.5), (15, 30), 30, 0.25, um, size)
+        groups.append(c)
+    return np.stack(groups, -1)
+
+
+@lru_cache(maxsize=2)
+def detail_tiles(seed: int = 0) -> DetailTiles:
+    """The relief and hair tiles for ``seed`` (made once per process, ~1 s)."""
+    return DetailTiles(_relief_tile(seed), _hair_tile(seed))
+
+
+def decode_slope(tile_rg: np.ndarray) -> np.ndarray:
+    """The height slope (dh/dx, dh/dy) stored in a relief tile's R, G."""
+    return (np.asarray(tile_rg, np.float32) / 255.0 - 0.5) * 2 * SLOPE_RANGE

@@ -1,0 +1,207 @@
+#version 330 core
+// Skin shading (Material.model "skin"), the torch twin is glsynth.diff.skin. In linear
+// light (the sRGB texture is decoded, the result encoded again):
+//   colour = albedo * sum(ambient + E * diffuse) + sum(E * specular),  E = light.diffuse
+// * diffuse: wrap lighting that reaches further past the terminator in red than in
+//   blue, on a normal that is softer in red than in blue (light scattered under the
+//   skin blurs the relief more at long wavelengths);
+// * specular: one GGX lobe with Smith masking and Schlick's Fresnel (F0 0.028, skin's
+//   refractive index 1.4); sebum (the per-body oiliness map) sharpens and raises it.
+// With DETAIL, micro-detail that no body texture could hold (glsynth.assets.detail):
+// the relief tile projected three ways from the world position (furrows and pores as a
+// normal perturbation and cavity darkening), and with HAIR, hair strands from the hair
+// tile in per-vertex hair-flow coordinates, shaded as fibres (Kajiya-Kay) and casting
+// a short parallax shadow. Both are scaled by the per-body skin parameters (u_params)
+// and by the texture's alpha, the detail weight: 0 on non-skin, so clothing, scalp hair
+// and eyes get none. Tiles are sampled at an explicit level of detail from the pixel's
+// footprint on the surface, so far views see their average and never alias.
+#ifndef NUM_LIGHTS
+#define NUM_LIGHTS 1
+#endif
+#ifndef SHADOWS
+#define SHADOWS 0
+#endif
+#ifndef DETAIL
+#define DETAIL 0
+#endif
+#ifndef HAIR
+#define HAIR 0
+#endif
+#define PI 3.14159265
+#define F0 0.028
+#define SLOPE_RANGE 1.5
+#define ALBEDO_RANGE 0.5
+#define HAIR_RATIO 1.618   // scale of the second hair layer
+uniform sampler2D u_texture;       // sRGB albedo, alpha = detail weight
+uniform vec3 u_eye;
+uniform vec3 u_light_pos[NUM_LIGHTS];
+uniform vec3 u_light_ambient[NUM_LIGHTS];
+uniform vec3 u_light_diffuse[NUM_LIGHTS];
+uniform float u_roughness;         // GGX roughness of dry skin (alpha = roughness^2)
+uniform float u_oil;               // 0..1, scales the oiliness map
+uniform float u_wrap;              // Material.wrap
+#if DETAIL
+uniform sampler2D u_params;        // R relief, G pores, B hair density, A oiliness
+uniform sampler2D u_relief;        // relief tile: RG slope, B cavity, A pore
+uniform float u_relief_period;     // scene units per relief tile
+uniform float u_relief_size;       // texels per relief tile
+uniform float u_pixel_angle;       // footprint of a pixel per unit of depth
+uniform float u_relief_amount;     // scales the relief (Material.relief)
+uniform float u_pore_mean;         // mean of the relief tile's pore channel
+#endif
+#if HAIR
+uniform sampler2D u_hair;          // hair tile: RG terminal, BA vellus coverage
+uniform float u_hair_period;
+uniform float u_hair_size;
+uniform vec3 u_hair_rgb;           // sRGB colour of terminal hair
+uniform float u_unit;              // scene units per metre
+flat in mat3x2 g_hair;             // hair-flow coordinates (scene units) of the corners
+#endif
+#include "surface.glsl"
+
+out vec4 out_color;
+
+#if SHADOWS
+#include "shadow.glsl"
+#endif
+
+vec3 to_linear(vec3 c) {
+    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(0.04045, c));
+}
+
+vec3 to_srgb(vec3 c) {
+    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
+}
+
+void main() {
+    vec3 b = surface_bary();
+    vec2 uv = g_uv * b;
+    vec3 world = g_world * b;
+    vec3 normal = g_normal * b;
+    float nlen = length(normal);
+    vec3 ng = nlen > 0.0 ? normal / nlen : vec3(0.0);
+    vec4 tex = texture(u_texture, vec2(uv.x, 1.0 - uv.y));
+    vec3 albedo = to_linear(tex.rgb);
+    vec3 to_eye = u_eye - world;
+    vec3 v = to_eye / max(length(to_eye), 1e-20);
+    vec3 n = ng;
+    float oil = 0.5 * u_oil;
+    float terminal = 0.0, vellus = 0.0, hair_shadow = 0.0;
+    vec3 fibre = vec3(0.0);
+#if DETAIL
+    vec4 prm = texture(u_params, vec2(uv.x, 1.0 - uv.y)) * tex.a;
+    oil = prm.a * u_oil;
+    // footprint of this pixel on the surface (isotropic, as GL's own LOD)
+    float footprint = dot(g_depth, b) * u_pixel_angle / max(abs(dot(ng, v)), 0.2);
+    float lod = log2(max(footprint / u_relief_period * u_relief_size, 1e-6));
+    vec3 w = ng * ng;
+    w *= w;
+    w /= max(w.x + w.y + w.z, 1e-12);
+    vec4 px = textureLod(u_relief, world.zy / u_relief_period, lod);
+    vec4 py = textureLod(u_relief, world.xz / u_relief_period, lod);
+    vec4 pz = textureLod(u_relief, world.xy / u_relief_period, lod);
+    vec2 sx = (px.rg - 0.5) * (2.0 * SLOPE_RANGE);
+    vec2 sy = (py.rg - 0.5) * (2.0 * SLOPE_RANGE);
+    vec2 sz = (pz.rg - 0.5) * (2.0 * SLOPE_RANGE);
+    // the height gradient of each projection in world axes, blended, then kept in the
+    // tangent plane (the surface gradient)
+    vec3 grad = w.x * vec3(0.0, sx.y, sx.x) + w.y * vec3(sy.x, 0.0, sy.y) + w.z * vec3(sz.x, sz.y, 0.0);
+    grad -= ng * dot(ng, grad);
+    float relief = prm.r * u_relief_amount;
+    vec3 nd = ng - relief * grad;
+    n = nd / max(length(nd), 1e-20);
+    // albedo: furrow darkening and melanin speckle (mean 0 over the tile), pores (their
+    // mean darkening over the tile, u_pore_mean, given back so far views keep the colour)
+    float tone = (dot(w, vec3(px.b, py.b, pz.b)) - 0.5) * (2.0 * ALBEDO_RANGE);
+    float pore = dot(w, vec3(px.a, py.a, pz.a));
+    albedo *= (1.0 + min(relief, 1.0) * tone) * (1.0 - 0.6 * prm.g * (pore - u_pore_mean));
+#if HAIR
+    // hair-flow frame of this face: dp/ds (along the hairs) and dp/dt
+    mat2 dh = mat2(g_hair[1] - g_hair[0], g_hair[2] - g_hair[0]);
+    vec3 e1 = g_world[1] - g_world[0], e2 = g_world[2] - g_world[0];
+    float det = determinant(dh);
+    vec3 t_s = vec3(1.0, 0.0, 0.0), t_t = vec3(0.0, 1.0, 0.0);
+    if (abs(det) > 1e-30) {
+        mat2 inv = inverse(dh);
+        t_s = e1 * inv[0][0] + e2 * inv[0][1];
+        t_t = e1 * inv[1][0] + e2 * inv[1][1];
+    }
+    vec3 t_flat = t_s - n * dot(n, t_s);
+    vec3 fibre_dir = t_flat / max(length(t_flat), 1e-20);
+    vec2 hc = g_hair * b;
+    float hlod = log2(max(footprint / u_hair_period * u_hair_size, 1e-6));
+    // two layers of the tile at incommensurate scales and offsets (groups R, B from one,
+    // G, A from the other), so that the tile's period does not show
+    vec4 hs = textureLod(u_hair, hc / u_hair_period, hlod);
+    vec4 hs2 = textureLod(u_hair, hc / (HAIR_RATIO * u_hair_period) + vec2(0.37, 0.61), hlod - log2(HAIR_RATIO));
+    float dens = prm.b;
+    float tv = clamp(dens * 4.0, 0.0, 1.0);
+    float tt = clamp((dens - 0.25) / 0.75, 0.0, 1.0);
+    terminal = hs.r * clamp(2.0 * tt, 0.0, 1.0) + hs2.g * clamp(2.0 * tt - 1.0, 0.0, 1.0);
+    vellus = 0.5 * (hs.b + hs2.a) * tv;
+    // parallax shadow: hairs lie ~0.15 mm above the skin; look up the hair that stands
+    // between this point and the main light
+    vec3 l0 = (u_light_pos[0] - world) / max(length(u_light_pos[0] - world), 1e-20);
+    float lift = 0.00015 * u_unit / max(dot(ng, l0), 0.3);
+    vec2 shift = lift * vec2(dot(l0, t_s) / max(length(t_s), 1e-20), dot(l0, t_t) / max(length(t_t), 1e-20));
+    vec4 hsh = textureLod(u_hair, (hc + shift) / u_hair_period, hlod);   // first layer only
+    hair_shadow = 2.0 * hsh.r * clamp(tt, 0.0, 0.5) + 0.5 * hsh.b * tv;
+    fibre = fibre_dir;
+#endif
+#endif
+    float roughness = mix(u_roughness, 0.75 * u_roughness, oil);
+    float alpha = roughness * roughness;
+    float a2 = alpha * alpha;
+    float k = 0.5 * alpha;
+    float nv = max(dot(n, v), 1e-4);
+    vec3 wrap = u_wrap * vec3(1.0, 0.6, 0.45);
+    vec3 light_sum = vec3(0.0);
+    vec3 spec_sum = vec3(0.0);
+    vec3 hair_light = vec3(0.0);
+    vec3 hair_spec = vec3(0.0);
+    for (int i = 0; i < NUM_LIGHTS; ++i) {
+        vec3 to_light = u_light_pos[i] - world;
+        vec3 l = to_light / max(length(to_light), 1e-20);
+#if SHADOWS
+        float vis = i == 0 ? main_light_visibility(b) : 1.0;
+#else
+        const float vis = 1.0;
+#endif
+        float nl_detail = dot(n, l);
+        float nl_geo = dot(ng, l);
+        vec3 nl = mix(vec3(nl_detail), vec3(nl_geo), vec3(0.6, 0.3, 0.15));
+        vec3 diffuse = max((nl + wrap) / (1.0 + wrap), 0.0);
+        float shade = i == 0 ? 1.0 - 0.6 * clamp(hair_shadow, 0.0, 1.0) : 1.0;
+        light_sum += u_light_ambient[i] + vis * shade * u_light_diffuse[i] * diffuse;
+        if (nl_detail > 0.0) {
+            vec3 h = (l + v) / max(length(l + v), 1e-20);
+            float nh = max(dot(n, h), 0.0);
+            float d = nh * nh * (a2 - 1.0) + 1.0;
+            float D = a2 / (PI * d * d);
+            float G = nl_detail / (nl_detail * (1.0 - k) + k) * nv / (nv * (1.0 - k) + k);
+            // clamped: with the light at the eye (a flash) v.h rounds to just above 1
+            float F = F0 + (1.0 - F0) * pow(clamp(1.0 - dot(v, h), 0.0, 1.0), 5.0);
+            spec_sum += vis * shade * u_light_diffuse[i] * (PI * D * F * G / (4.0 * nv) * (1.0 + 0.4 * oil));
+        }
+#if HAIR
+        // hair fibres: diffuse by the sine of the light to the fibre, a shifted
+        // specular cone (Kajiya-Kay)
+        float tl = dot(fibre, l);
+        vec3 hh = (l + v) / max(length(l + v), 1e-20);
+        float th = dot(fibre, hh);
+        hair_light += u_light_ambient[i] + vis * u_light_diffuse[i] * (0.3 + 0.7 * sqrt(max(1.0 - tl * tl, 0.0)));
+        hair_spec += vis * u_light_diffuse[i] * 0.12 * pow(sqrt(max(1.0 - th * th, 0.0)), 40.0);
+#endif
+    }
+    vec3 colour = albedo * light_sum + spec_sum;
+#if HAIR
+    vec3 hair_albedo = to_linear(u_hair_rgb);
+    vec3 vellus_albedo = mix(albedo, hair_albedo, 0.3) * 1.15;   // fine, partly translucent
+    float cover = clamp(terminal + vellus, 0.0, 1.0);
+    if (cover > 0.0) {
+        vec3 hair_col = (hair_albedo * terminal + vellus_albedo * vellus) / max(terminal + vellus, 1e-6);
+        colour = mix(colour, hair_col * hair_light + hair_spec, cover);
+    }
+#endif
+    out_color = vec4(to_srgb(clamp(colour, 0.0, 1.0)), 1.0);
+}
