@@ -23,6 +23,8 @@ OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth", "normals", "uv", 
 # written unless ``outputs`` says otherwise; the extra 3D outputs are opt-in
 DEFAULT_OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth")
 BLEND_METHODS = ("deep", "poisson", "paste")
+SHADINGS = ("phong", "skin")
+FRAMINGS = ("wild", "closeup", "regional")
 FEATURES = ("auto", "vgg16", "filters")
 
 
@@ -96,6 +98,22 @@ class ViewsConfig:
     flash_diffuse: list = field(default_factory=lambda: [0.2, 0.6])
     flash_specular: list = field(default_factory=lambda: [0.0, 0.1])
     ambient_tint: float = 0.0         # 0..1: tint the ambient light by the background's mean colour
+    # Shading: "phong" (the paper's) or "skin" (linear-light skin reflectance with
+    # micro-relief and hair, shaders/skin.frag); skin material ranges:
+    shading: str = "phong"
+    roughness: list = field(default_factory=lambda: [0.3, 0.5])   # GGX roughness of dry skin
+    oil: list = field(default_factory=lambda: [0.2, 1.0])         # scales the body's oiliness map
+    relief: list = field(default_factory=lambda: [0.7, 1.3])      # scales the micro-relief
+    detail: bool = True               # micro-relief and hair (skin shading only)
+    # Framing: weights of the view kinds (views.py): "wild" (the paper's: a surface point
+    # or lesion at w), "closeup" (lesion-centred, near-perpendicular, the lesion filling
+    # closeup_fraction of the frame), "regional" (a body part fills the frame).
+    framing: dict = field(default_factory=lambda: {"wild": 1.0})
+    closeup_fraction: list = field(default_factory=lambda: [0.05, 0.7])  # lesion area / frame area
+    closeup_tilt: float = 25.0        # degrees: the camera within this angle of the normal
+    closeup_w: list = field(default_factory=lambda: [0.04, 0.6])   # close-up distance limits
+    closeup_flash: float = 0.6        # probability of a flash in a close-up
+    regional_fill: list = field(default_factory=lambda: [0.6, 1.2])  # part extent / frame width
 
 
 @dataclass
@@ -217,6 +235,10 @@ def _coerce(value, default, name, source) -> Any:
         if not isinstance(value, list):
             raise bad("a list")
         return value
+    if isinstance(default, dict):
+        if not isinstance(value, dict):
+            raise bad("a mapping")
+        return dict(value)
     if isinstance(default, str) or default is None:
         if value is not None and not isinstance(value, str):
             raise bad("a string")
@@ -286,6 +308,19 @@ def validate(cfg: Config, source="config"):
     _range(v.flash_diffuse, "views.flash_diffuse", source, 0, 10)
     _range(v.flash_specular, "views.flash_specular", source, 0, 10)
     need(0 <= v.ambient_tint <= 1, "views.ambient_tint", v.ambient_tint, "must be in [0, 1]")
+    need(v.shading in SHADINGS, "views.shading", v.shading, f"must be one of {SHADINGS}")
+    _range(v.roughness, "views.roughness", source, 0.02, 1)
+    _range(v.oil, "views.oil", source, 0, 1)
+    _range(v.relief, "views.relief", source, 0, 10)
+    bad_kinds = [k for k in v.framing if k not in FRAMINGS]
+    need(not bad_kinds and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x >= 0
+                               for x in v.framing.values()) and sum(v.framing.values()) > 0,
+         "views.framing", v.framing, f"must map some of {FRAMINGS} to weights >= 0 (not all 0)")
+    _range(v.closeup_fraction, "views.closeup_fraction", source, 1e-4, 1)
+    need(0 <= v.closeup_tilt < 90, "views.closeup_tilt", v.closeup_tilt, "must be in [0, 90)")
+    _range(v.closeup_w, "views.closeup_w", source, 1e-4, 1e4)
+    need(0 <= v.closeup_flash <= 1, "views.closeup_flash", v.closeup_flash, "must be in [0, 1]")
+    _range(v.regional_fill, "views.regional_fill", source, 0.05, 10)
     ph = cfg.photo
     _range(ph.aperture, "photo.aperture", source, 0, 1)
     need(0 <= ph.focus_jitter < 1, "photo.focus_jitter", ph.focus_jitter, "must be in [0, 1)")

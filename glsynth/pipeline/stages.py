@@ -321,14 +321,20 @@ class Generate2DViews(_Stage):
         return texture, instances, placements
 
     def _lesion_points(self, renderer, mesh, instances, placements):
+        """A views.LesionSite per placed lesion: its texels' points, normals and area."""
         if not placements:
             return []
-        points = []
+        h, w = instances.shape
+        uv = mesh.uvs[mesh.face_uvs]
+        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * (w * h)
+        texel_area = mesh.face_areas / np.maximum(uv_area, 1e-30)   # surface per texel, by face
+        sites = []
         for p in placements:  # only each lesion's texel box is rasterised (~10 ms, not 240)
             tx = TexelGeometry.of(renderer, mesh, only=instances == p.instance, box=p.texel_box)
             if len(tx.rows):
-                points.append((tx.points, tx.normals))
-        return points
+                sites.append(V.LesionSite(tx.points, tx.normals, float(texel_area[tx.faces].sum())))
+        return sites
 
     def _one_view(self, renderer, body_id, body, mesh_b, instances, nevi_map, placements,
                   lesion_points, backgrounds, j, rejected):
@@ -377,7 +383,7 @@ class Generate2DViews(_Stage):
                             "source": p.lesion_meta if p else None})
         view = cam.view_matrix()
         meta = {"id": sid, "width": v.size, "height": v.size, "attempts": attempt,
-                "camera": {**cam.to_dict(), "centre": scene.centre,
+                "camera": {**cam.to_dict(), "centre": scene.centre, "framing": scene.framing,
                            "intrinsics": cam.intrinsics().tolist(),
                            "view_matrix": view.tolist(),
                            "world_to_camera": view.tolist(),

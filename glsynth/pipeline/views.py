@@ -29,6 +29,7 @@ class ViewScene:
     # the surface point the camera looks at: when set, render_view rejects the view
     # unless it is the first surface on the central ray (camera outside, point not hidden)
     point: np.ndarray | None = None
+    framing: str = "wild"    # views.framing kind: wild, closeup or regional
 
     @property
     def lights(self) -> list:
@@ -39,22 +40,48 @@ class ViewRejected(Exception):
     pass
 
 
-def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None, drawn=None) -> ViewScene:
-    """One camera + light(s) + material; raises ViewRejected when the light is blocked
-    (whether the camera sees its point is checked on the view's own G-buffer by
-    ``render_view``, which saves a draw per view). ``ambient_tint`` (RGB gains, see
-    ``ambient_tint_from``) colours the room light's ambient term. Wrap lighting and the
-    flash draw random numbers only when the config turns them on, so configs without
-    them give the same scenes as before. ``drawn``: the mesh the views render (the
-    body's geometry with the blended texture; default ``body.mesh``), which the light
-    probe draws too: one upload per body, and the probe's near and far planes are the
-    shadow map's (the renderer caches them per mesh and eye)."""
-    mesh = body.mesh
-    if lesion_points and rng.random() < v.lesion_bias:
-        k = int(rng.integers(len(lesion_points)))
-        pts, nrms = lesion_points[k]
-        i = int(rng.integers(len(pts)))
-        point, normal, centre = pts[i], nrms[i], f"lesion {k + 1}"
+@dataclass
+class LesionSite:
+    """Where a lesion lies on the body: its texels' surface points and unit normals,
+    and its surface area (scene units squared)."""
+    points: np.ndarray
+    normals: np.ndarray
+    area: float
+
+
+def choose_framing(rng, v, has_lesions: bool) -> str:
+    """One of views.framing's kinds by weight (close-ups need a lesion). A config with
+    only "wild" draws no random number, so the paper's scenes stay as they were."""
+    weights = {k: float(x) for k, x in v.framing.items() if x > 0 and (k != "closeup" or has_lesions)}
+    if not weights:
+        return "wild"
+    if list(weights) == ["wild"]:
+        return "wild"
+    kinds = list(weights)
+    p = np.array([weights[k] for k in kinds])
+    return kinds[int(rng.choice(len(kinds), p=p / p.sum()))]
+
+
+def _tilted(normal, rng, max_deg):
+    """``normal`` turned by up to ``max_deg`` (uniform in angle) about a random axis in the
+    tangent plane."""
+    n = normal / np.linalg.norm(normal)
+    axis = np.cross(n, rng.normal(size=3))
+    if np.linalg.norm(axis) < 1e-9:
+        return n
+    axis /= np.linalg.norm(axis)
+    a = np.radians(rng.uniform(0, max_deg))
+    return n * np.cos(a) + np.cross(axis, n) * np.sin(a)
+
+
+def _wild_camera(mesh, lesion_sites, rng, v):
+    """The paper's view: a surface point (a lesion's with probability views.lesion_bias)
+    seen along its normal from w in views.w."""
+    if lesion_sites and rng.random() < v.lesion_bias:
+        k = int(rng.integers(len(lesion_sites)))
+        site = lesion_sites[k]
+        i = int(rng.integers(len(site.points)))
+        point, normal, centre = site.points[i], site.normals[i], f"lesion {k + 1}"
     else:
         p = mesh.face_areas / mesh.face_areas.sum()
         f = rng.choice(len(p), p=p)
@@ -62,14 +89,84 @@ def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None, drawn
         point = bary @ mesh.vertices[mesh.faces[f]]
         normal = bary @ mesh.vertex_normals[mesh.faces[f]]
         centre = "surface"
-    if np.linalg.norm(normal) < 1e-9:
+    return point, normal, normal, rng.uniform(*v.w), centre
+
+
+def _closeup_camera(lesion_sites, rng, v):
+    """A clinical close-up: a lesion filling a fraction of the frame (log-uniform in
+    views.closeup_fraction, as area), seen within views.closeup_tilt of its normal,
+    its centre off the image centre by up to a fifth of the frame."""
+    k = int(rng.integers(len(lesion_sites)))
+    site = lesion_sites[k]
+    lo, hi = v.closeup_fraction
+    frac = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    half_tan = np.tan(np.radians(v.fov_deg) / 2)
+    width = np.sqrt(site.area / frac)                       # frame width on the surface
+    w = float(np.clip(width / (2 * half_tan), *v.closeup_w))
+    centroid = site.points.mean(0)
+    aim = centroid + rng.uniform(-0.2, 0.2, 3) * 2 * w * half_tan
+    i = int(np.argmin(np.sum((site.points - aim) ** 2, axis=1)))
+    point, normal = site.points[i], site.normals[i]
+    return point, normal, _tilted(normal, rng, v.closeup_tilt), w, f"lesion {k + 1}"
+
+
+def _regional_camera(body, rng, v):
+    """A body part filling the frame: its extent along its main axis over the frame
+    width in views.regional_fill, seen along the normal of a point near its middle."""
+    mesh, labels = body.mesh, body.mesh.vertex_labels
+    if labels is None:
+        return None
+    parts = [k for k in np.unique(labels) if k > 0]
+    areas = np.array([mesh.face_areas[labels[mesh.faces[:, 0]] == k].sum() for k in parts])
+    k = parts[int(rng.choice(len(parts), p=areas / areas.sum()))]
+    idx = np.flatnonzero(labels == k)
+    pts = mesh.vertices[idx]
+    c = pts.mean(0)
+    extent = float(np.ptp((pts - c) @ np.linalg.svd(pts - c, full_matrices=False)[2][0]))
+    near = idx[np.argsort(np.sum((pts - c) ** 2, axis=1))[:max(1, len(idx) // 4)]]
+    i = int(rng.choice(near))
+    fill = rng.uniform(*v.regional_fill)
+    w = extent / fill / (2 * np.tan(np.radians(v.fov_deg) / 2))
+    normal = mesh.vertex_normals[i]
+    return mesh.vertices[i], normal, normal, float(w), f"part {int(k)}"
+
+
+def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=None) -> ViewScene:
+    """One camera + light(s) + material; raises ViewRejected when the light is blocked
+    (whether the camera sees its point is checked on the view's own G-buffer by
+    ``render_view``, which saves a draw per view). ``lesion_sites``: LesionSite per
+    lesion. ``ambient_tint`` (RGB gains, see ``ambient_tint_from``) colours the room
+    light's ambient term. Framing, wrap lighting, the flash and the skin material draw
+    random numbers only when the config turns them on, so configs without them give the
+    same scenes as before. ``drawn``: the mesh the views render (the body's geometry with
+    the blended texture; default ``body.mesh``), which the light probe draws too: one
+    upload per body, and the probe's near and far planes are the shadow map's (the
+    renderer caches them per mesh and eye)."""
+    mesh = body.mesh
+    framing = choose_framing(rng, v, bool(lesion_sites))
+    chosen = None
+    if framing == "closeup":
+        chosen = _closeup_camera(lesion_sites, rng, v)
+    elif framing == "regional":
+        chosen = _regional_camera(body, rng, v)
+    if chosen is None:
+        framing = "wild"
+        chosen = _wild_camera(mesh, lesion_sites, rng, v)
+    point, normal, direction, w, centre = chosen
+    if np.linalg.norm(normal) < 1e-9 or np.linalg.norm(direction) < 1e-9:
         raise ViewRejected("zero normal")
-    w = rng.uniform(*v.w)
-    cam = Camera.from_surface(point, normal, w, fov_deg=v.fov_deg, width=v.size, height=v.size)
+    cam = Camera.from_surface(point, direction, w, fov_deg=v.fov_deg, width=v.size, height=v.size)
+    if direction is not normal:  # tilted: keep the surface's own normal in the record
+        cam = Camera(cam.eye, cam.target, cam.up, cam.fov_deg, cam.width, cam.height, None, None,
+                     {**cam.surface, "normal": (np.asarray(normal) / np.linalg.norm(normal)).tolist(),
+                      "view_direction": cam.surface["normal"]})
     # light near the camera, in a random direction, unblocked on its way to the point
     direction = rng.normal(size=3)
     direction /= np.linalg.norm(direction)
-    light_pos = np.asarray(cam.eye) + direction * rng.uniform(*v.light_offset)
+    offset = rng.uniform(*v.light_offset)
+    if framing == "closeup":
+        offset = min(offset, 2 * w)  # a lamp or window beside the photographer, not metres off
+    light_pos = np.asarray(cam.eye) + direction * offset
     if np.linalg.norm(light_pos - point) < 1e-6 or not _sees_point(
             renderer, mesh if drawn is None else drawn,
             Camera.look_at(light_pos, point, fov_deg=5.0, width=16, height=16), point):
@@ -83,13 +180,20 @@ def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None, drawn
                        specular=rng.uniform(*v.specular))
     mat_spec, shininess = rng.uniform(*v.material_specular), rng.uniform(*v.shininess)
     wrap = float(rng.uniform(*v.wrap)) if v.wrap[1] > 0 else 0.0
-    material = Material(specular=mat_spec, shininess=shininess, wrap=wrap)
+    skin = {}
+    if v.shading == "skin":
+        skin = dict(model="skin", roughness=float(rng.uniform(*v.roughness)),
+                    oil=float(rng.uniform(*v.oil)), relief=float(rng.uniform(*v.relief)),
+                    detail=v.detail)
+    material = Material(specular=mat_spec, shininess=shininess, wrap=wrap, **skin)
     flash = None
-    if v.flash > 0 and rng.random() < v.flash:
+    p_flash = v.closeup_flash if framing == "closeup" else v.flash
+    if p_flash > 0 and rng.random() < p_flash:
         # a phone flash sits next to the lens: no ambient, the camera sees what it lights
         flash = PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(*v.flash_diffuse),
                            specular=rng.uniform(*v.flash_specular))
-    return ViewScene(cam, light, material, centre, flash, point=np.asarray(point, np.float64))
+    return ViewScene(cam, light, material, centre, flash, point=np.asarray(point, np.float64),
+                     framing=framing)
 
 
 def ambient_tint_from(background, strength) -> tuple:
