@@ -5,6 +5,8 @@ import argparse
 import logging
 import sys
 
+from .errors import GlsynthError, describe
+
 
 def _config(args):
     from .config import load_config
@@ -90,12 +92,19 @@ def main(argv=None):
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    # Expected failures (bad input, unusable files, OS errors) are one line and exit 2;
+    # anything else is a bug and keeps its traceback.
     try:
         args.fn(args)
-    except (ValueError, FileNotFoundError, FileExistsError, RuntimeError) as exc:
-        print(f"glsynth {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+        return 0
+    except KeyboardInterrupt:
+        hint = "; continue with --resume" if args.command == "generate" else ""
+        rc, message = 130, f"interrupted{hint}"
+    except (GlsynthError, OSError) as exc:
+        rc, message = 2, f"error: {describe(exc)}"
+    # said once the failed call's frames are gone: their progress bars have closed by then
+    print(f"glsynth {args.command}: {message}", file=sys.stderr)
+    return rc
 
 
 if __name__ == "__main__":

@@ -12,10 +12,11 @@ from typing import Any
 
 import yaml
 
+from .errors import GlsynthError
 from .resources import config_dir
 
 
-class ConfigError(ValueError):
+class ConfigError(GlsynthError, ValueError):
     """A configuration file or override is invalid; the message names the key."""
 
 
@@ -145,10 +146,17 @@ def load_config(path=None, overrides=()) -> Config:
     ``key.sub=value`` overrides (values parsed as YAML), validate."""
     path = os.fspath(path) if path is not None else str(config_dir() / "default.yaml")
     try:
-        with open(path) as fh:
+        with open(path, encoding="utf-8") as fh:
             raw = yaml.safe_load(fh) or {}
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a config file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the config file ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); "
+                          "save the config as UTF-8") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from None
     if not isinstance(raw, dict):

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from ..errors import InputError
 from ..io.images import ImageError, read_mask, read_rgb
 from .colour import ita_range, lab_to_uint8, shades_of_gray
 
@@ -35,7 +36,7 @@ _IGNORE = re.compile(r"(_superpixels|_R\d+_Label\d+)$", re.I)
 _CSV_KEYS = ("name", "image_id", "image", "isic_id", "md5hash", "id")
 
 
-class LesionError(ValueError):
+class LesionError(InputError):
     """A lesion image or mask is unusable; the message names the file and the problem."""
 
 

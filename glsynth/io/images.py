@@ -7,8 +7,10 @@ import tempfile
 import cv2
 import numpy as np
 
+from ..errors import InputError
 
-class ImageError(ValueError):
+
+class ImageError(InputError):
     """An image file is missing, unreadable or has the wrong shape/dtype."""
 
 

@@ -25,6 +25,8 @@ from collections import OrderedDict, deque
 
 from tqdm import tqdm
 
+from ..errors import GlsynthError, MissingDependencyError
+
 try:
     import ray
     from ray.exceptions import RayActorError
@@ -42,15 +44,15 @@ STALL_WARN_S = 60                 # say so when nothing finished for this long
 ENV_PREFIXES = ("GLSYNTH_",)      # driver environment variables passed on to the actors
 
 
-class RayExecutorError(RuntimeError):
+class RayExecutorError(GlsynthError, RuntimeError):
     """The Ray executor could not finish the run (actors fail to start, a task keeps
     killing its actor)."""
 
 
 def _require_ray():
     if not has_ray:
-        raise ImportError("--executor ray needs Ray: pip install 'glsynth[ray]' "
-                          f"(import failed: {_RAY_IMPORT_ERROR})") from _RAY_IMPORT_ERROR
+        raise MissingDependencyError("--executor ray needs Ray: pip install 'glsynth[ray]' "
+                                     f"(import failed: {_RAY_IMPORT_ERROR})") from _RAY_IMPORT_ERROR
 
 
 if has_ray:

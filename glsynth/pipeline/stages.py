@@ -24,6 +24,7 @@ from tqdm import tqdm
 
 from .. import __version__
 from ..config import Config
+from ..errors import InputError
 from ..io.images import read_rgb, write_png, write_text
 from . import views as V
 from .bodies import TexelGeometry, body_ids, load_body
@@ -538,9 +539,9 @@ def generate(cfg: Config, out, resume=False, workers=1, executor="local", addres
     """
     out = os.fspath(out)
     if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+        raise InputError(f"workers must be >= 1, got {workers}")
     if executor not in EXECUTORS:
-        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+        raise InputError(f"executor must be one of {EXECUTORS}, got {executor!r}")
     if os.path.isdir(out) and os.listdir(out) and not resume:
         if os.path.isfile(os.path.join(out, "manifest.json")) or any(
                 os.path.isdir(os.path.join(out, d)) for d in ("targets", "images")):

@@ -26,7 +26,8 @@ import torch
 import torch.nn.functional as F
 
 from ..assets.lesions import load_lesions
-from ..io.images import read_mask, read_rgb, write_png, write_text
+from ..errors import InputError
+from ..io.images import ImageError, read_mask, read_rgb, write_png, write_text
 from .data import preprocess
 from .metrics import dice, jaccard
 from .trainer import load_model
@@ -65,7 +66,7 @@ def truth_map(shape, masks: dict) -> np.ndarray:
     """HxW uint8: 0 lesion, 1 skin, 2 non-skin; 3 = unknown (pairs: everything off the lesion)."""
     les = read_mask(masks["lesion"])
     if les.shape != tuple(shape):
-        raise ValueError(f"{masks['lesion']}: mask {les.shape} does not match image {tuple(shape)}")
+        raise ImageError(f"{masks['lesion']}: mask {les.shape} does not match image {tuple(shape)}")
     if "nonskin" not in masks:
         t = np.full(shape, 3, np.uint8)
     else:
@@ -73,7 +74,7 @@ def truth_map(shape, masks: dict) -> np.ndarray:
         if masks["nonskin"]:
             ns = read_mask(masks["nonskin"])
             if ns.shape != tuple(shape):
-                raise ValueError(f"{masks['nonskin']}: mask {ns.shape} does not match image {tuple(shape)}")
+                raise ImageError(f"{masks['nonskin']}: mask {ns.shape} does not match image {tuple(shape)}")
             t[ns] = 2
     t[les] = 0  # a pixel marked both lesion and non-skin counts as lesion
     return t
@@ -145,7 +146,7 @@ def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, 
     """Score `model_path` on the real images in `real`; write report.md, per_image.csv,
     summary.json and grid.png to `out`. Returns the summary dict."""
     if layout not in ("fitz17k", "pairs"):
-        raise ValueError(f"unknown layout {layout!r} (expected 'fitz17k' or 'pairs')")
+        raise InputError(f"unknown layout {layout!r} (expected 'fitz17k' or 'pairs')")
     model, ck = load_model(model_path, device)
     size = int(size or ck["hparams"]["size"])
     samples = real_samples(real, layout)

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from ..dataset import SynthDataset
+from ..errors import InputError, UnavailableError
 from . import data as D
 from .loss import fuzzy_jaccard_loss, nevi_ignore_mask
 from .model import SegNet, count_parameters
@@ -37,7 +38,7 @@ class TrainSet(torch.utils.data.Dataset):
         self.sets = [SynthDataset(r, targets=("three_class", "anatomy_groups")) for r in roots]
         self.index = [(k, j) for k, s in enumerate(self.sets) for j in range(len(s))]
         if not self.index:
-            raise ValueError(f"no samples in {', '.join(map(str, roots))}")
+            raise InputError(f"no samples in {', '.join(map(str, roots))}")
         self.size, self.seed, self.aug = size, seed, augment
 
     def __len__(self):
@@ -129,7 +130,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
     out = os.fspath(out)
     roots = [os.fspath(d) for d in ([data] if isinstance(data, (str, os.PathLike)) else data)]
     if device == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("--device cuda: CUDA is not available")
+        raise UnavailableError("--device cuda: CUDA is not available")
     ck = None
     if os.path.exists(out):
         if not resume:
