@@ -122,3 +122,69 @@ def test_a_config_file_that_is_not_utf8_is_named(tmp_path):
     path.write_bytes("# réglages\nseed: 1\n".encode("latin-1"))
     with pytest.raises(ConfigError, match=r"latin1\.yaml: not UTF-8"):
         load_config(path)
+
+
+# ---- writes ----------------------------------------------------------------------------
+def test_output_files_get_the_umask_permissions(tmp_path):
+    from glsynth.io.images import write_bytes, write_png
+    from glsynth.train.trainer import save_checkpoint
+    old = os.umask(0o022)
+    try:
+        write_png(tmp_path / "a.png", np.zeros((4, 4), np.uint8))
+        write_bytes(tmp_path / "b.json", b"{}")
+        save_checkpoint(tmp_path / "c.pt", {"x": 1})
+        os.umask(0o002)
+        write_bytes(tmp_path / "d.json", b"{}")
+    finally:
+        os.umask(old)
+    modes = {p.name: p.stat().st_mode & 0o777 for p in tmp_path.iterdir()}
+    assert modes == {"a.png": 0o644, "b.json": 0o644, "c.pt": 0o644, "d.json": 0o664}
+
+
+def test_a_full_disk_never_leaves_a_truncated_file(tmp_path):
+    """A file-size limit makes the kernel refuse the last bytes of the PNG (EFBIG), as a
+    full disk refuses them (ENOSPC): the write fails naming the file, and nothing is
+    left under its name or as a temporary."""
+    code = textwrap.dedent(f"""
+        import os, resource, signal
+        import cv2, numpy as np
+        from glsynth.io.images import write_png
+        img = np.random.default_rng(0).integers(0, 255, (128, 128), dtype=np.uint8)
+        size = len(cv2.imencode(".png", img)[1])
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size - 10, resource.RLIM_INFINITY))
+        try:
+            write_png({str(tmp_path / "x.png")!r}, img)
+        except OSError as exc:
+            print("error:", exc)
+    """)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert f"{tmp_path / 'x.png'}: could not write the file" in res.stdout, res.stdout
+    assert os.listdir(tmp_path) == []
+
+
+def test_no_space_left_is_one_clear_error(tmp_path, monkeypatch):
+    """A file object that takes half the bytes, then reports ENOSPC."""
+    from glsynth.errors import WriteError
+    from glsynth.io.images import write_png, write_text
+    real_write = os.write
+    calls = []
+
+    def half_then_full(fd, data):
+        calls.append(len(data))
+        if len(calls) == 1:
+            return real_write(fd, bytes(data)[:len(data) // 2])
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(os, "write", half_then_full)
+    target = tmp_path / "targets" / "x_semantic.png"
+    with pytest.raises(WriteError) as info:
+        write_png(target, np.random.default_rng(1).integers(0, 255, (64, 64), dtype=np.uint8))
+    assert str(info.value).startswith(f"{target}: could not write the file")
+    assert "disk" in str(info.value) and info.value.errno == errno.ENOSPC
+    assert len(calls) == 2 and os.listdir(target.parent) == []
+    # a file system that accepts no bytes at all must not spin or pass
+    monkeypatch.setattr(os, "write", lambda fd, data: 0)
+    with pytest.raises(WriteError):
+        write_text(tmp_path / "y.json", "{}")
+    assert not (tmp_path / "y.json").exists()

@@ -9,10 +9,10 @@ file in the same folder, then rename): at the end of every epoch, every
 """
 from __future__ import annotations
 
+import io
 import logging
 import math
 import os
-import tempfile
 import time
 
 import numpy as np
@@ -20,6 +20,7 @@ import torch
 
 from ..dataset import SynthDataset
 from ..errors import InputError, UnavailableError
+from ..io.images import write_bytes
 from . import data as D
 from .loss import fuzzy_jaccard_loss, nevi_ignore_mask
 from .model import SegNet, count_parameters
@@ -68,19 +69,10 @@ class TrainSet(torch.utils.data.Dataset):
 
 
 def save_checkpoint(path, state: dict):
-    """torch.save to a temporary file next to `path`, then rename (atomic)."""
-    path = os.fspath(path)
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=".pt")
-    os.close(fd)
-    try:
-        torch.save(state, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """torch.save, then an atomic, fsync-ed write of the bytes (glsynth.io.images)."""
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    write_bytes(path, buf.getbuffer(), durable=True)
 
 
 def build_model(arch: dict) -> SegNet:
