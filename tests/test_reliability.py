@@ -69,15 +69,22 @@ def _one_line_errors(tmp_path):
     a_file.write_text("x")
     latin = tmp_path / "latin1.yaml"
     latin.write_bytes("# réglages\n".encode("latin-1"))
+    (tmp_path / "random.pt").write_bytes(np.random.default_rng(0).bytes(512))
+    (tmp_path / "empty.pt").write_bytes(b"")
     out = str(tmp_path / "out")
     return {
         "config is a folder": (["generate", "--config", str(tmp_path), "--out", out], str(tmp_path)),
         "config not UTF-8": (["generate", "--config", str(latin), "--out", out], str(latin)),
         "out under a file": (["generate", "--out", str(a_file / "out")], str(a_file / "out")),
+        "model of random bytes": (["evaluate", "--model", str(tmp_path / "random.pt"), "--real", out,
+                                   "--layout", "pairs", "--out", out], "random.pt: not a torch"),
+        "empty model": (["evaluate", "--model", str(tmp_path / "empty.pt"), "--real", out,
+                         "--layout", "pairs", "--out", out], "empty.pt: not a readable torch"),
     }
 
 
-@pytest.mark.parametrize("case", ["config is a folder", "config not UTF-8", "out under a file"])
+@pytest.mark.parametrize("case", ["config is a folder", "config not UTF-8", "out under a file",
+                                  "model of random bytes", "empty model"])
 def test_expected_failures_are_one_line(tmp_path, case):
     argv, named = _one_line_errors(tmp_path)[case]
     rc, err = _run_main(argv)
@@ -188,3 +195,34 @@ def test_no_space_left_is_one_clear_error(tmp_path, monkeypatch):
     with pytest.raises(WriteError):
         write_text(tmp_path / "y.json", "{}")
     assert not (tmp_path / "y.json").exists()
+
+
+# ---- model files -----------------------------------------------------------------------
+class _Payload:
+    """Unpickling this creates a file (an attacker's code would do worse)."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def test_a_hostile_model_file_runs_no_code(tmp_path, capsys):
+    import torch
+    from glsynth.errors import ModelFileError
+    from glsynth.train.trainer import FORMAT, init_weights, load_model, train
+    from glsynth.train.model import SegNet
+    marker = tmp_path / "pwned"
+    evil = tmp_path / "model.pt"
+    torch.save({"format": FORMAT, "arch": {}, "model": {}, "x": _Payload(marker)}, evil)
+    for load in (lambda: load_model(evil), lambda: init_weights(SegNet(width=0.25), evil),
+                 lambda: train(tmp_path / "no-data", evil, resume=True)):
+        with pytest.raises(ModelFileError, match="model.pt: refused"):
+            load()
+        assert not marker.exists()
+    rc = main(["evaluate", "--model", str(evil), "--real", str(tmp_path), "--layout", "pairs",
+               "--out", str(tmp_path / "report")])
+    err = capsys.readouterr().err
+    assert rc == 2 and not marker.exists()
+    assert len(err.strip().splitlines()) == 1 and str(evil) in err

@@ -19,8 +19,9 @@ import numpy as np
 import torch
 
 from ..dataset import SynthDataset
-from ..errors import InputError, UnavailableError
+from ..errors import InputError, ModelFileError, UnavailableError
 from ..io.images import write_bytes
+from ..io.modelfile import load_torch_file
 from . import data as D
 from .loss import fuzzy_jaccard_loss, nevi_ignore_mask
 from .model import SegNet, count_parameters
@@ -79,11 +80,17 @@ def build_model(arch: dict) -> SegNet:
     return SegNet(n_seg=arch.get("n_seg", 3), n_anatomy=arch.get("n_anatomy", 8), width=arch.get("width", 1.0))
 
 
+def read_checkpoint(path) -> dict:
+    """A checkpoint written by ``train`` (read with weights_only: no code runs)."""
+    ck = load_torch_file(path, "checkpoint")
+    if not isinstance(ck, dict) or ck.get("format") != FORMAT:
+        raise ModelFileError(f"{path}: not a glsynth segmentation checkpoint")
+    return ck
+
+
 def load_model(path, device="cpu"):
     """(model in eval mode, checkpoint dict) from a checkpoint written by ``train``."""
-    ck = torch.load(os.fspath(path), map_location="cpu", weights_only=False)
-    if not isinstance(ck, dict) or ck.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a glsynth segmentation checkpoint")
+    ck = read_checkpoint(path)
     model = build_model(ck["arch"])
     model.load_state_dict(ck["model"])
     return model.to(device).eval(), ck
@@ -92,8 +99,10 @@ def load_model(path, device="cpu"):
 def init_weights(model, path):
     """Load matching weights from a local checkpoint (ours, or a plain state dict);
     parameters whose names or shapes differ keep their initial values."""
-    ck = torch.load(os.fspath(path), map_location="cpu", weights_only=False)
+    ck = load_torch_file(path, "checkpoint or state dict")
     sd = ck.get("model", ck) if isinstance(ck, dict) else ck
+    if not isinstance(sd, dict):
+        raise ModelFileError(f"{path}: neither a glsynth checkpoint nor a state dict")
     own = model.state_dict()
     ok = {k: v for k, v in sd.items() if k in own and getattr(v, "shape", None) == own[k].shape}
     model.load_state_dict(ok, strict=False)
@@ -127,9 +136,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
     if os.path.exists(out):
         if not resume:
             raise FileExistsError(f"{out} exists; pass --resume to continue it or choose another --out")
-        ck = torch.load(out, map_location="cpu", weights_only=False)
-        if ck.get("format") != FORMAT:
-            raise ValueError(f"{out}: not a glsynth segmentation checkpoint")
+        ck = read_checkpoint(out)
         h = ck["hparams"]
         size, batch_size, lr, weight_decay = h["size"], h["batch_size"], h["lr"], h["weight_decay"]
         seed, width, anatomy_weight, augment = h["seed"], h["width"], h["anatomy_weight"], h["augment"]
@@ -166,7 +173,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
                 "n_parameters": count_parameters(model), "preprocessing": {
                     "colour_constancy": "shades_of_gray(p=6)", "mean": D.MEAN.tolist(),
                     "std": D.STD.tolist(), "resize": "shorter side = size"},
-                "saved": reason, "torch": torch.__version__}
+                "saved": reason, "torch": str(torch.__version__)}
 
     from tqdm import tqdm
     final = None
