@@ -226,3 +226,65 @@ def test_a_hostile_model_file_runs_no_code(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and not marker.exists()
     assert len(err.strip().splitlines()) == 1 and str(evil) in err
+
+
+# ---- validation ------------------------------------------------------------------------
+@pytest.mark.parametrize("override,key", [
+    ("views.w=[.nan, 1]", "views.w"), ("photo.exposure=[.nan, .nan]", "photo.exposure"),
+    ("views.ambient=[0.2, .inf]", "views.ambient"), ("blend.lr=.nan", "blend.lr"),
+    ("paste.max_depth_change=.inf", "paste.max_depth_change"),
+    ("bodies.fitzpatrick=[1, .nan]", "bodies.fitzpatrick"),
+])
+def test_non_finite_numbers_are_rejected(override, key):
+    with pytest.raises(ConfigError, match=rf"{key}.*finite"):
+        load_config(None, [override])
+
+
+def test_degenerate_lesions_are_rejected_with_a_reason(tmp_path):
+    from glsynth.assets.lesions import LesionError, load_lesion, load_lesions
+    rng = np.random.default_rng(0)
+    photo = rng.integers(60, 200, (60, 80, 3), dtype=np.uint8)
+    spot = np.zeros((60, 80), np.uint8)
+    spot[20:40, 30:50] = 255
+    for name, img, mask in (("tiny", photo[:1, :1], np.full((1, 1), 255, np.uint8)),
+                            ("white", photo, np.full((60, 80), 255, np.uint8)),
+                            ("good", photo, spot)):
+        cv2.imwrite(str(tmp_path / f"{name}.png"), img)
+        cv2.imwrite(str(tmp_path / f"{name}_mask.png"), mask)
+    with pytest.raises(LesionError, match=r"tiny\.png: image is 1x1 pixels, below the minimum"):
+        load_lesion(tmp_path / "tiny.png", tmp_path / "tiny_mask.png")
+    with pytest.raises(LesionError, match=r"white_mask\.png: mask covers 100% of the image"):
+        load_lesion(tmp_path / "white.png", tmp_path / "white_mask.png")
+    lesions = load_lesions(tmp_path, layout="pairs")
+    assert lesions.ids == ["good"]
+    assert dict(lesions.skipped) == {"with images below the minimum size": 1,
+                                     "with masks covering nearly the whole image": 1}
+    # the thresholds are the config's
+    assert load_lesions(tmp_path, layout="pairs", min_size=1, max_mask_fraction=1.0).ids == \
+        ["good", "tiny", "white"]
+    with pytest.raises(ConfigError, match="lesions.max_mask_fraction"):
+        load_config(None, ["lesions.max_mask_fraction=0"])
+
+
+def _write_scan(folder, scale):
+    """A 3DBodyTex-layout folder: a person-sized textured box in ``scale`` units."""
+    import trimesh
+    folder.mkdir(parents=True)
+    box = trimesh.creation.box(extents=(0.5, 1.7, 0.3))
+    v = (box.vertices + [0, 0.85, 0]) * scale
+    with open(folder / "model_highres_0_normalized.obj", "w") as fh:
+        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in v)
+        fh.writelines(f"vt {x} {y}\n" for x, y in (v[:, :2] / v[:, :2].max()).clip(0, 1))
+        fh.writelines(f"f {a}/{a} {b}/{b} {c}/{c}\n" for a, b, c in box.faces + 1)
+    cv2.imwrite(str(folder / "model_highres_0_normalized.png"), np.full((16, 16, 3), 180, np.uint8))
+
+
+def test_a_mesh_in_millimetres_is_named_as_such(tmp_path):
+    from glsynth.assets.bodytex import BodyError
+    from glsynth.pipeline.bodies import load_body
+    _write_scan(tmp_path / "scans" / "mm", 1000.0)
+    _write_scan(tmp_path / "scans" / "m", 1.0)
+    cfg = tiny(f"bodies.source={tmp_path / 'scans'}", "bodies.count=2")
+    assert load_body(cfg, "m").mesh.vertices.max() < 2
+    with pytest.raises(BodyError, match=r"mm: the body is 1700 units across.*metres.*millimetres"):
+        load_body(cfg, "mm")

@@ -83,7 +83,8 @@ def lesion_source(cfg: Config):
     if le.source == "procedural":
         n = max(le.per_body * cfg.bodies.count, 1)
         return assets.procedural_lesions(n, seed=cfg.seed)
-    return assets.load_lesions(le.source, layout=le.layout, colour_constancy=le.colour_constancy)
+    return assets.load_lesions(le.source, layout=le.layout, colour_constancy=le.colour_constancy,
+                               min_size=le.min_size, max_mask_fraction=le.max_mask_fraction)
 
 
 def background_source(cfg: Config):
