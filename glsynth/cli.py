@@ -33,11 +33,14 @@ def cmd_generate(args):
 
 def cmd_stage(args):
     from . import pipeline
+    from .pipeline.runlock import open_run
     cfg = _config(args)
-    stage = {"paste": (pipeline.SelectAndPaste, "paste_on_locations"),
-             "blend": (pipeline.BlendLesions, "blend_lesions"),
-             "views": (pipeline.Generate2DViews, "synthesize_views")}[args.command]
-    getattr(stage[0](cfg, args.out), stage[1])()
+    stage, method = {"paste": (pipeline.SelectAndPaste, "paste_on_locations"),
+                     "blend": (pipeline.BlendLesions, "blend_lesions"),
+                     "views": (pipeline.Generate2DViews, "synthesize_views")}[args.command]
+    # a stage continues the run in --out: same fingerprint, and no other process there
+    with open_run(args.out, cfg, resume=True):
+        getattr(stage(cfg, args.out), method)()
 
 
 def cmd_show(args):

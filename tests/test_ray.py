@@ -108,6 +108,7 @@ def test_killed_actor_is_replaced(ray_cluster, reference, tmp_path, caplog, how)
     os.makedirs(out)
     # bodies already pasted and blended: the kill lands in the views stage
     shutil.copytree(reference / "bodies", out / "bodies")
+    shutil.copy(reference / "fingerprint.json", out)  # the same run, continued
     killed = []
     killer = threading.Thread(target=_kill_when_first_sample_appears, args=(str(out), how, killed))
     killer.start()

@@ -76,6 +76,7 @@ def _one_line_errors(tmp_path):
         "config is a folder": (["generate", "--config", str(tmp_path), "--out", out], str(tmp_path)),
         "config not UTF-8": (["generate", "--config", str(latin), "--out", out], str(latin)),
         "out under a file": (["generate", "--out", str(a_file / "out")], str(a_file / "out")),
+        "out is a file": (["generate", "--out", str(a_file)], f"{a_file}: exists and is not a folder"),
         "model of random bytes": (["evaluate", "--model", str(tmp_path / "random.pt"), "--real", out,
                                    "--layout", "pairs", "--out", out], "random.pt: not a torch"),
         "empty model": (["evaluate", "--model", str(tmp_path / "empty.pt"), "--real", out,
@@ -84,7 +85,7 @@ def _one_line_errors(tmp_path):
 
 
 @pytest.mark.parametrize("case", ["config is a folder", "config not UTF-8", "out under a file",
-                                  "model of random bytes", "empty model"])
+                                  "out is a file", "model of random bytes", "empty model"])
 def test_expected_failures_are_one_line(tmp_path, case):
     argv, named = _one_line_errors(tmp_path)[case]
     rc, err = _run_main(argv)
@@ -313,3 +314,51 @@ def test_a_swapped_or_cut_body_cache_file_is_rebuilt(tmp_path):
     again = B.make_body(seed=1, texture_size=64, cache_dir=cache)
     assert again.mesh.texture.shape == (64, 64, 3)
     assert np.array_equal(again.mesh.texture, one.mesh.texture)
+
+
+# ---- one run per folder ----------------------------------------------------------------
+def test_resume_with_another_seed_or_config_is_refused(tmp_path):
+    out = tmp_path / "run"
+    gs.pipeline.generate(tiny(), out)
+    before = _tree(out)
+    from glsynth.errors import GlsynthError
+    with pytest.raises(GlsynthError, match=r"seed 3 -> 4.*views\.per_body 2 -> 3"):
+        gs.pipeline.generate(tiny("seed=4", "views.per_body=3"), out, resume=True)
+    assert _tree(out) == before  # nothing written, nothing mixed in
+    # the stage commands continue the same run only
+    err = _run_main(["views", "--out", str(out), *sum((["--set", s] for s in TINY + ["views.size=96"]), [])])
+    assert err[0] == 2 and "views.size 64 -> 96" in err[1]
+    gs.pipeline.generate(tiny(), out, resume=True)  # its own config continues it
+
+
+def test_a_second_process_on_the_folder_is_refused(tmp_path, capsys):
+    """Even one that would continue the very same run: two writers interleave their
+    pastes, blends and samples (with other seeds, a body gets one run's paste and the
+    other's blend)."""
+    out = tmp_path / "shared"
+    first = _start_cli(out, TINY + ["views.per_body=8"])
+    try:
+        rc = main(_cli_args(out, TINY + ["views.per_body=8"]) + ["--resume"])
+        err = capsys.readouterr().err
+    finally:
+        stdout, stderr = first.communicate(timeout=600)
+    assert rc == 2 and "another glsynth run is writing this folder" in err, err
+    assert first.returncode == 0, stderr
+    manifest = json.load(open(out / "manifest.json"))
+    assert manifest["seed"] == 3 and manifest["counts"]["images"] == 8
+    assert json.load(open(out / "fingerprint.json"))["seed"] == 3
+
+
+def test_the_lock_of_a_killed_run_is_taken_over(tmp_path):
+    out = tmp_path / "stale"
+    out.mkdir()
+    code = textwrap.dedent(f"""
+        import os, signal
+        from glsynth.pipeline.runlock import _locked
+        with _locked({str(out)!r}):
+            os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    subprocess.run([sys.executable, "-c", code])
+    assert "pid" in (out / ".glsynth.lock").read_text()  # left behind by the dead holder
+    gs.pipeline.generate(tiny("views.per_body=1"), out, resume=True)
+    assert (out / "manifest.json").is_file() and not (out / ".glsynth.lock").exists()

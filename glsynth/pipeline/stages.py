@@ -29,6 +29,7 @@ from ..io.images import read_rgb, write_png, write_text
 from . import views as V
 from .bodies import TexelGeometry, body_ids, load_body
 from .paste import PasteError, PasteSettings, PastedTextures, paste_lesions
+from .runlock import open_run
 from .seeding import rng_for, torch_seed
 from .writer import finalize, sample_done, write_sample
 
@@ -543,12 +544,12 @@ def generate(cfg: Config, out, resume=False, workers=1, executor="local", addres
         raise InputError(f"workers must be >= 1, got {workers}")
     if executor not in EXECUTORS:
         raise InputError(f"executor must be one of {EXECUTORS}, got {executor!r}")
-    if os.path.isdir(out) and os.listdir(out) and not resume:
-        if os.path.isfile(os.path.join(out, "manifest.json")) or any(
-                os.path.isdir(os.path.join(out, d)) for d in ("targets", "images")):
-            raise FileExistsError(f"{out}: output folder is not empty; pass --resume to continue "
-                                  "the run there, or choose another folder")
-    os.makedirs(out, exist_ok=True)
+    # one run per folder: locked, and its fingerprint written first or checked
+    with open_run(out, cfg, resume):
+        return _generate(cfg, out, resume, workers, executor, address)
+
+
+def _generate(cfg, out, resume, workers, executor, address):
     if resume:
         _remove_partial_writes(out)
     t_start = time.perf_counter()
