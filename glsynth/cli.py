@@ -33,6 +33,7 @@ def cmd_generate(args):
 
 def cmd_stage(args):
     from . import pipeline
+    from .pipeline.inputs import open_inputs
     from .pipeline.runlock import open_run
     cfg = _config(args)
     stage, method = {"paste": (pipeline.SelectAndPaste, "paste_on_locations"),
@@ -40,7 +41,8 @@ def cmd_stage(args):
                      "views": (pipeline.Generate2DViews, "synthesize_views")}[args.command]
     # a stage continues the run in --out: same fingerprint, and no other process there
     with open_run(args.out, cfg, resume=True):
-        getattr(stage(cfg, args.out), method)()
+        inputs = open_inputs(cfg, stages=(args.command,))
+        getattr(stage(cfg, args.out, inputs=inputs), method)()
 
 
 def cmd_show(args):

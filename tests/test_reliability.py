@@ -362,3 +362,12 @@ def test_the_lock_of_a_killed_run_is_taken_over(tmp_path):
     assert "pid" in (out / ".glsynth.lock").read_text()  # left behind by the dead holder
     gs.pipeline.generate(tiny("views.per_body=1"), out, resume=True)
     assert (out / "manifest.json").is_file() and not (out / ".glsynth.lock").exists()
+
+
+# ---- inputs are checked before any stage works -----------------------------------------
+def test_a_missing_background_folder_fails_before_any_body_is_pasted(tmp_path):
+    from glsynth.assets.backgrounds import BackgroundError
+    out = tmp_path / "run"
+    with pytest.raises(BackgroundError, match="nowhere: background folder not found"):
+        gs.pipeline.generate(tiny(f"backgrounds.source={tmp_path / 'nowhere'}"), out)
+    assert not (out / "bodies").exists()

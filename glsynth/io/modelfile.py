@@ -36,3 +36,15 @@ def load_torch_file(path, what="model file"):
         why = str(exc).splitlines()[0] if str(exc) else "the file is empty or cut short"
         raise ModelFileError(f"{path}: not a readable torch {what} ({why})") from None
 
+
+def check_torch_file(path, what="model file"):
+    """Open ``path`` and check that it starts as a torch file does (a zip archive, or a
+    pickle for the legacy format), without loading it."""
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        raise ModelFileError(f"{path}: is a folder, not a {what}")
+    with open(path, "rb") as fh:
+        head = fh.read(4)
+    if not (head.startswith(b"PK\x03\x04") or head[:1] == b"\x80"):
+        raise ModelFileError(f"{path}: not a torch {what} ("
+                             + ("the file is empty)" if not head else "neither a zip archive nor a pickle)"))

@@ -125,16 +125,24 @@ def load_vgg16(path) -> VGG16Features:
     return net.eval().requires_grad_(False)
 
 
+def vgg_weights_for(kind, weights=None):
+    """The VGG16 weights file blend.features ``kind`` will read (None: the filter bank)."""
+    if kind == "filters":
+        return None
+    path = find_vgg_weights(weights)
+    if path is None and kind == "vgg16":
+        raise FileNotFoundError("blend.features=vgg16 but no VGG16 weights: set blend.vgg_weights "
+                                f"or put vgg16-*.pth in {torch.hub.get_dir()}/checkpoints")
+    return path
+
+
 def make_extractor(kind="auto", weights=None):
     """(module, description). kind: 'auto' (VGG16 when weights are found, else the
     filter bank with a warning), 'vgg16' (weights required) or 'filters'."""
     if kind == "filters":
         return FilterBankFeatures().eval(), "filters"
-    path = find_vgg_weights(weights)
+    path = vgg_weights_for(kind, weights)
     if path is None:
-        if kind == "vgg16":
-            raise FileNotFoundError("blend.features=vgg16 but no VGG16 weights: set blend.vgg_weights "
-                                    f"or put vgg16-*.pth in {torch.hub.get_dir()}/checkpoints")
         log.warning("no VGG16 ImageNet weights found (blend.vgg_weights or torch hub cache); "
                     "blending uses the weight-free filter-bank features")
         return FilterBankFeatures().eval(), "filters (no VGG16 weights found)"
