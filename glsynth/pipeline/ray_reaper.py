@@ -8,7 +8,7 @@ processes the driver's Ray instance runs. When the pipe closes (the driver finis
 died however it died) the watcher terminates those of them that still run: SIGTERM,
 then SIGKILL. Linux only (``/proc``); elsewhere it does nothing.
 
-    python -m glsynth.pipeline.ray_reaper      # the watcher; reads JSON lines on stdin
+    python glsynth/pipeline/ray_reaper.py      # the watcher; reads JSON lines on stdin
 """
 from __future__ import annotations
 
@@ -61,8 +61,10 @@ class Reaper:
 
     def __init__(self):
         self._before = set(descendants(os.getpid()))
-        self._proc = subprocess.Popen([sys.executable, "-m", __name__], stdin=subprocess.PIPE,
-                                      stdout=subprocess.DEVNULL, start_new_session=True)
+        # run by path: importing the glsynth package would load numpy, OpenCV... for nothing
+        self._proc = subprocess.Popen([sys.executable, os.path.abspath(__file__)],
+                                      stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                      start_new_session=True)
         self._before.add(self._proc.pid)
 
     def watch(self):
