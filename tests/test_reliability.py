@@ -298,21 +298,22 @@ def test_a_swapped_or_cut_body_cache_file_is_rebuilt(tmp_path):
 
     def path_of(seed):
         args = {"seed": seed, "fitzpatrick": None, "ita": None, "phenotype": None, "pose": None,
-                "clothing": None, "texture_size": 64}
+                "clothing": None, "texture_size": 128}
         return B._cache_path(args, B._cache_key(args), cache)
 
-    one = B.make_body(seed=1, texture_size=64, cache_dir=cache)
+    one = B.make_body(seed=1, texture_size=128, cache_dir=cache)
     path_of(2).parent.mkdir(parents=True, exist_ok=True)
     shutil.copy(path_of(1), path_of(2))  # body 1's file under body 2's name
-    two = B.make_body(seed=2, texture_size=64, cache_dir=cache)
+    two = B.make_body(seed=2, texture_size=128, cache_dir=cache)
     assert two.meta["seed"] == 2 and not np.array_equal(two.mesh.vertices, one.mesh.vertices)
-    assert B.make_body(seed=2, texture_size=64, cache_dir=cache).meta["seed"] == 2  # replaced
+    with np.load(path_of(2)) as z:  # the bad file was replaced, not kept
+        assert json.loads(str(z["meta"]))["seed"] == 2
     with np.load(path_of(1)) as z:  # body 1's file with its texture cut in half
         arrays = {k: z[k] for k in z.files}
-    arrays["texture"] = arrays["texture"][:32]
+    arrays["texture"] = arrays["texture"][:64]
     np.savez(path_of(1), **arrays)
-    again = B.make_body(seed=1, texture_size=64, cache_dir=cache)
-    assert again.mesh.texture.shape == (64, 64, 3)
+    again = B.make_body(seed=1, texture_size=128, cache_dir=cache)
+    assert again.mesh.texture.shape == (128, 128, 3)
     assert np.array_equal(again.mesh.texture, one.mesh.texture)
 
 
