@@ -293,26 +293,20 @@ def test_a_mesh_in_millimetres_is_named_as_such(tmp_path):
 
 # ---- the body cache --------------------------------------------------------------------
 def test_a_swapped_or_cut_body_cache_file_is_rebuilt(tmp_path):
-    from glsynth.assets import bodies as B
+    from glsynth.assets.bodies import make_body
     cache = tmp_path / "cache"
-
-    def path_of(seed):
-        args = {"seed": seed, "fitzpatrick": None, "ita": None, "phenotype": None, "pose": None,
-                "clothing": None, "texture_size": 128}
-        return B._cache_path(args, B._cache_key(args), cache)
-
-    one = B.make_body(seed=1, texture_size=128, cache_dir=cache)
-    path_of(2).parent.mkdir(parents=True, exist_ok=True)
-    shutil.copy(path_of(1), path_of(2))  # body 1's file under body 2's name
-    two = B.make_body(seed=2, texture_size=128, cache_dir=cache)
-    assert two.meta["seed"] == 2 and not np.array_equal(two.mesh.vertices, one.mesh.vertices)
-    with np.load(path_of(2)) as z:  # the bad file was replaced, not kept
+    one, two = (make_body(seed=s, texture_size=128, cache_dir=cache) for s in (1, 2))
+    (path1,), (path2,) = ((cache / "bodies").glob(f"body-{s}-*.npz") for s in (1, 2))
+    shutil.copy(path1, path2)  # body 1's file under body 2's name
+    again = make_body(seed=2, texture_size=128, cache_dir=cache)
+    assert again.meta["seed"] == 2 and np.array_equal(again.mesh.vertices, two.mesh.vertices)
+    with np.load(path2) as z:  # the bad file was replaced, not kept
         assert json.loads(str(z["meta"]))["seed"] == 2
-    with np.load(path_of(1)) as z:  # body 1's file with its texture cut in half
+    with np.load(path1) as z:  # body 1's file with its texture cut in half
         arrays = {k: z[k] for k in z.files}
     arrays["texture"] = arrays["texture"][:64]
-    np.savez(path_of(1), **arrays)
-    again = B.make_body(seed=1, texture_size=128, cache_dir=cache)
+    np.savez(path1, **arrays)
+    again = make_body(seed=1, texture_size=128, cache_dir=cache)
     assert again.mesh.texture.shape == (128, 128, 3)
     assert np.array_equal(again.mesh.texture, one.mesh.texture)
 
