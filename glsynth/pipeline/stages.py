@@ -29,8 +29,8 @@ from ..io.images import read_rgb, write_png, write_text
 from . import views as V
 from .bodies import TexelGeometry, body_ids, load_body
 from .inputs import Inputs, background_source, lesion_source, open_inputs
-from .runlock import open_run
 from .paste import PasteError, PasteSettings, PastedTextures, paste_lesions
+from .runlock import open_run
 from .seeding import rng_for, torch_seed
 from .writer import finalize, sample_done, write_sample
 
@@ -526,6 +526,10 @@ def generate(cfg: Config, out, resume=False, workers=1, executor="local", addres
     Every random choice is keyed by the task, so the files are the same for any
     number of workers. ``executor="ray"`` spreads the same tasks over Ray actors
     (``address``: an existing cluster; None starts a local one).
+
+    ``out`` holds one run (``runlock``): a folder with a run in it needs ``resume``,
+    which continues it only with the same config, seed and glsynth version, and no
+    other process may write there meanwhile.
     """
     out = os.fspath(out)
     if workers < 1:
