@@ -5,6 +5,8 @@ import argparse
 import logging
 import sys
 
+from .errors import GlsynthError, describe
+
 
 def _config(args):
     from .config import load_config
@@ -31,11 +33,16 @@ def cmd_generate(args):
 
 def cmd_stage(args):
     from . import pipeline
+    from .pipeline.inputs import open_inputs
+    from .pipeline.runlock import open_run
     cfg = _config(args)
-    stage = {"paste": (pipeline.SelectAndPaste, "paste_on_locations"),
-             "blend": (pipeline.BlendLesions, "blend_lesions"),
-             "views": (pipeline.Generate2DViews, "synthesize_views")}[args.command]
-    getattr(stage[0](cfg, args.out), stage[1])()
+    stage, method = {"paste": (pipeline.SelectAndPaste, "paste_on_locations"),
+                     "blend": (pipeline.BlendLesions, "blend_lesions"),
+                     "views": (pipeline.Generate2DViews, "synthesize_views")}[args.command]
+    # a stage continues the run in --out: same fingerprint, and no other process there
+    with open_run(args.out, cfg, resume=True):
+        inputs = open_inputs(cfg, stages=(args.command,))
+        getattr(stage(cfg, args.out, inputs=inputs), method)()
 
 
 def cmd_show(args):
@@ -91,12 +98,19 @@ def main(argv=None):
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    # Expected failures (bad input, unusable files, OS errors) are one line and exit 2;
+    # anything else is a bug and keeps its traceback.
     try:
         args.fn(args)
-    except (ValueError, FileNotFoundError, FileExistsError, RuntimeError) as exc:
-        print(f"glsynth {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+        return 0
+    except KeyboardInterrupt:
+        hint = "; continue with --resume" if args.command == "generate" else ""
+        rc, message = 130, f"interrupted{hint}"
+    except (GlsynthError, OSError) as exc:
+        rc, message = 2, f"error: {describe(exc)}"
+    # said once the failed call's frames are gone: their progress bars have closed by then
+    print(f"glsynth {args.command}: {message}", file=sys.stderr)
+    return rc
 
 
 if __name__ == "__main__":

@@ -6,16 +6,18 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import os
 from dataclasses import dataclass, field
 from typing import Any
 
 import yaml
 
+from .errors import GlsynthError
 from .resources import config_dir
 
 
-class ConfigError(ValueError):
+class ConfigError(GlsynthError, ValueError):
     """A configuration file or override is invalid; the message names the key."""
 
 
@@ -44,6 +46,8 @@ class LesionsConfig:
     per_body: int = 2
     colour_constancy: bool = True     # Shades of Gray on real lesion images (paper)
     size: list = field(default_factory=lambda: [0.15, 0.4])  # lesion extent / view width
+    min_size: int = 16                # lesion images with a shorter side (px) are rejected
+    max_mask_fraction: float = 0.95   # masks covering more of their image are rejected
 
 
 @dataclass
@@ -163,10 +167,17 @@ def load_config(path=None, overrides=()) -> Config:
     ``key.sub=value`` overrides (values parsed as YAML), validate."""
     path = os.fspath(path) if path is not None else str(config_dir() / "default.yaml")
     try:
-        with open(path) as fh:
+        with open(path, encoding="utf-8") as fh:
             raw = yaml.safe_load(fh) or {}
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a config file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the config file ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); "
+                          "save the config as UTF-8") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from None
     if not isinstance(raw, dict):
@@ -256,10 +267,26 @@ def _range(cfg_value, name, source, lo=None, hi=None, integer=False):
         raise ConfigError(f"{source}: {name} must lie in [{lo}, {hi}], got {v!r}")
 
 
+def _check_finite(value, name, source):
+    """NaN or infinity anywhere (a number, or inside a list) is an error naming the key."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _check_finite(v, f"{name}.{k}" if name else k, source)
+    elif isinstance(value, (list, tuple)):
+        if any(isinstance(x, float) and not math.isfinite(x) for x in value):
+            raise ConfigError(f"{source}: {name} must hold finite numbers, got {list(value)!r}")
+        for i, x in enumerate(value):
+            if isinstance(x, (dict, list, tuple)):
+                _check_finite(x, f"{name}[{i}]", source)
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{source}: {name} must be a finite number, got {value!r}")
+
+
 def validate(cfg: Config, source="config"):
     def need(cond, name, value, what):
         if not cond:
             raise ConfigError(f"{source}: {name} {what}, got {value!r}")
+    _check_finite(cfg.to_dict(), "", source)
     need(cfg.seed >= 0, "seed", cfg.seed, "must be >= 0")
     b = cfg.bodies
     need(b.count >= 1, "bodies.count", b.count, "must be >= 1")
@@ -270,6 +297,9 @@ def validate(cfg: Config, source="config"):
     need(le.layout in ("fitz17k", "pairs"), "lesions.layout", le.layout, "must be 'fitz17k' or 'pairs'")
     need(le.per_body >= 0, "lesions.per_body", le.per_body, "must be >= 0")
     _range(le.size, "lesions.size", source, 0.01, 1.5)
+    need(1 <= le.min_size <= 4096, "lesions.min_size", le.min_size, "must be in [1, 4096] pixels")
+    need(0 < le.max_mask_fraction <= 1, "lesions.max_mask_fraction", le.max_mask_fraction,
+         "must be in (0, 1]")
     p = cfg.paste
     need(32 <= p.view_size <= 4096, "paste.view_size", p.view_size, "must be in [32, 4096]")
     need(0 < p.fov_deg < 170, "paste.fov_deg", p.fov_deg, "must be in (0, 170)")

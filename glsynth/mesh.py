@@ -14,10 +14,12 @@ from functools import cached_property
 
 import numpy as np
 
+from .errors import InputError
+
 log = logging.getLogger(__name__)
 
 
-class MeshError(ValueError):
+class MeshError(InputError):
     """A mesh (or a mesh file) is unusable; the message names the file and the problem."""
 
 

@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import InputError, UnavailableError
+
 log = logging.getLogger(__name__)
 
 # Displayable buffers, in key order (keys 1..8).
@@ -146,7 +148,7 @@ def colourise(name: str, layers: dict) -> np.ndarray:
         out[..., 1] = np.where(fg, np.round(np.clip(uv[..., 1], 0, 1) * 255), 0)
         out[..., 2] = np.where(fg, 64, 0)
         return out
-    raise ValueError(f"unknown buffer {name!r}; choose from {', '.join(BUFFERS)}")
+    raise InputError(f"unknown buffer {name!r}; choose from {', '.join(BUFFERS)}")
 
 
 # ---- the scene --------------------------------------------------------------------------
@@ -167,14 +169,14 @@ def load_scene(args) -> PreviewScene:
     from . import assets
     given = [n for n in ("body", "bodytex", "mesh") if getattr(args, n, None) is not None]
     if len(given) > 1:
-        raise ValueError(f"choose one of --body, --bodytex, --mesh (got {', '.join('--' + g for g in given)})")
+        raise InputError(f"choose one of --body, --bodytex, --mesh (got {', '.join('--' + g for g in given)})")
     if args.blended is not None:
         if given:
-            raise ValueError("--blended takes its bodies from that run's config: choose one "
+            raise InputError("--blended takes its bodies from that run's config: choose one "
                              "with --body-id (e.g. --body-id body000), not --" + given[0])
         return _load_blended(args.blended, args.body_id)
     if args.body_id is not None:
-        raise ValueError("--body-id chooses a body of a --blended run; pass --blended DIR too")
+        raise InputError("--body-id chooses a body of a --blended run; pass --blended DIR too")
     if given == ["bodytex"]:
         body, bid = assets.load_bodytex(args.bodytex), os.path.basename(os.path.normpath(args.bodytex))
     elif given == ["mesh"]:
@@ -199,7 +201,7 @@ def _load_blended(folder, body_id) -> PreviewScene:
     with open(manifest) as fh:
         raw = json.load(fh)
     if "config" not in raw:
-        raise ValueError(f"{manifest}: has no 'config' (the resolved run config)")
+        raise InputError(f"{manifest}: has no 'config' (the resolved run config)")
     cfg = from_dict(raw["config"], source=manifest)
     bodies_dir = os.path.join(folder, "bodies")
     available = sorted(d for d in os.listdir(bodies_dir)
@@ -219,13 +221,13 @@ def _load_blended(folder, body_id) -> PreviewScene:
     texture = read_rgb(tex_path)
     hw = body.mesh.texture.shape[:2]
     if texture.shape[:2] != hw:
-        raise ValueError(f"{tex_path}: texture is {texture.shape[1]}x{texture.shape[0]} but body "
+        raise InputError(f"{tex_path}: texture is {texture.shape[1]}x{texture.shape[0]} but body "
                          f"{body_id} has a {hw[1]}x{hw[0]} texture (config changed since the run?)")
     inst_path = os.path.join(bdir, "instances.png")
     if os.path.isfile(inst_path):
         instances = read_image(inst_path).astype(np.uint16)
         if instances.shape != hw:
-            raise ValueError(f"{inst_path}: instance map is {instances.shape[1]}x{instances.shape[0]}, "
+            raise InputError(f"{inst_path}: instance map is {instances.shape[1]}x{instances.shape[0]}, "
                              f"texture is {hw[1]}x{hw[0]}")
     else:
         instances = np.zeros(hw, np.uint16)
@@ -310,16 +312,16 @@ def parse_camera(text, width, height):
             import yaml
             d = yaml.safe_load(text)
         except Exception:
-            raise ValueError(f"{src}: not JSON or YAML ({exc})") from None
+            raise InputError(f"{src}: not JSON or YAML ({exc})") from None
     if not isinstance(d, dict):
-        raise ValueError(f"{src}: expected a camera dict (Camera.to_dict()), got {type(d).__name__}")
+        raise InputError(f"{src}: expected a camera dict (Camera.to_dict()), got {type(d).__name__}")
     cam_d = d.get("camera", d)
     if not isinstance(cam_d, dict) or "eye" not in cam_d or "target" not in cam_d:
-        raise ValueError(f"{src}: a camera needs 'eye' and 'target' (as Camera.to_dict() writes)")
+        raise InputError(f"{src}: a camera needs 'eye' and 'target' (as Camera.to_dict() writes)")
     try:
         cam = Camera.from_dict(cam_d).with_size(width, height)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{src}: bad camera: {exc}") from None
+        raise InputError(f"{src}: bad camera: {exc}") from None
     return cam, d.get("light"), d.get("material")
 
 
@@ -329,12 +331,12 @@ def open_window(width, height, title="glsynth preview", visible=True):
     the problem when there is no display or no such context."""
     import glfw
     if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        raise RuntimeError(NO_DISPLAY.format(reason="the DISPLAY environment variable is not set"))
+        raise UnavailableError(NO_DISPLAY.format(reason="the DISPLAY environment variable is not set"))
     errors = []
     glfw.set_error_callback(lambda code, desc: errors.append(
         desc.decode(errors="replace") if isinstance(desc, bytes) else str(desc)))
     if not glfw.init():
-        raise RuntimeError(NO_DISPLAY.format(
+        raise UnavailableError(NO_DISPLAY.format(
             reason=f"GLFW could not start ({errors[-1] if errors else 'glfw.init failed'}; "
                    f"DISPLAY={os.environ.get('DISPLAY')!r})"))
     glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
@@ -347,7 +349,7 @@ def open_window(width, height, title="glsynth preview", visible=True):
     win = glfw.create_window(int(width), int(height), title, None, None)
     if not win:
         glfw.terminate()
-        raise RuntimeError(f"glsynth preview: could not open a {width}x{height} window with an "
+        raise UnavailableError(f"glsynth preview: could not open a {width}x{height} window with an "
                            f"OpenGL 3.3 core context ({errors[-1] if errors else 'unknown error'}); "
                            "use `glsynth generate` to render offscreen instead")
     glfw.make_context_current(win)
@@ -386,7 +388,7 @@ class Viewer:
         self.material = Material(specular=m.get("specular", 0.025), shininess=m.get("shininess", 50.0),
                                  wrap=m.get("wrap", 0.0))
         if buffer not in BUFFERS:
-            raise ValueError(f"unknown buffer {buffer!r}; choose from {', '.join(BUFFERS)}")
+            raise InputError(f"unknown buffer {buffer!r}; choose from {', '.join(BUFFERS)}")
         self.buffer = buffer
         self.save_dir = save_dir
         self.lesion_index = -1
@@ -545,7 +547,7 @@ class Viewer:
 
     def set_buffer(self, name):
         if name not in BUFFERS:
-            raise ValueError(f"unknown buffer {name!r}; choose from {', '.join(BUFFERS)}")
+            raise InputError(f"unknown buffer {name!r}; choose from {', '.join(BUFFERS)}")
         self.buffer = name
         self.dirty = True
 
@@ -788,9 +790,9 @@ def register(subparsers):
 
 def cmd_preview(args):
     if args.frames is not None and args.frames < 1:
-        raise ValueError(f"--frames must be >= 1, got {args.frames}")
+        raise InputError(f"--frames must be >= 1, got {args.frames}")
     if args.texture_size < 16:
-        raise ValueError(f"--texture-size must be >= 16, got {args.texture_size}")
+        raise InputError(f"--texture-size must be >= 16, got {args.texture_size}")
     frames = args.frames if args.frames is not None else (1 if args.screenshot else None)
     cam = light = material = None
     if args.camera:

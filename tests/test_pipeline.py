@@ -99,6 +99,16 @@ def test_manifest_and_params(dataset):
     assert len(rows) == 5 and rows[0].startswith("id,")
 
 
+def test_every_file_has_the_mode_the_umask_asks_for(dataset):
+    """Not mkstemp's 0600: on shared storage the group must be able to read a dataset."""
+    umask = os.umask(0)
+    os.umask(umask)
+    modes = {os.path.relpath(os.path.join(r, n), dataset): os.stat(os.path.join(r, n)).st_mode & 0o777
+             for r, _, ns in os.walk(dataset) for n in ns}
+    assert len(modes) > 20
+    assert {k: oct(m) for k, m in modes.items() if m != 0o666 & ~umask} == {}
+
+
 def test_torch_dataset_and_show(dataset, tmp_path):
     from glsynth.dataset import SynthDataset
     ds = SynthDataset(dataset, targets=("three_class", "anatomy_groups", "depth", "boxes"))

@@ -5,6 +5,8 @@ import logging
 import os
 import shutil
 import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -108,6 +110,7 @@ def test_killed_actor_is_replaced(ray_cluster, reference, tmp_path, caplog, how)
     os.makedirs(out)
     # bodies already pasted and blended: the kill lands in the views stage
     shutil.copytree(reference / "bodies", out / "bodies")
+    shutil.copy(reference / "fingerprint.json", out)  # the same run, continued
     killed = []
     killer = threading.Thread(target=_kill_when_first_sample_appears, args=(str(out), how, killed))
     killer.start()
@@ -126,3 +129,39 @@ def test_actor_start_failure_is_reported(ray_cluster, tmp_path, monkeypatch):
     with pytest.raises(ray_executor.RayExecutorError, match="no-such-backend"):
         gs.pipeline.generate(small_config(), tmp_path / "bad", workers=1, executor="ray")
     assert _no_actors_left()
+
+
+def test_a_killed_driver_leaves_no_ray_process(tmp_path):
+    """SIGKILL of a `glsynth generate --executor ray` that started its own local Ray:
+    every process below it (GCS, raylet, agents, actors) is gone within seconds. Ray's
+    dashboard and runtime-env agents used to outlive the driver by a minute or more."""
+    import psutil  # Ray ships it
+    out = tmp_path / "run"
+    args = [sys.executable, "-m", "glsynth.cli", "generate", "--out", str(out), "--executor", "ray",
+            "--workers", "1"]
+    for s in OVERRIDES:
+        args += ["--set", s]
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}  # a Ray of its own
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    deadline = time.time() + 300
+    while not (out / "bodies").is_dir():  # Ray is up and its actor at work
+        assert proc.poll() is None and time.time() < deadline, "the run ended or never started"
+        time.sleep(0.05)
+    below = psutil.Process(proc.pid).children(recursive=True)
+    assert any("raylet" in p.name() for p in below), [p.name() for p in below]
+    proc.kill()
+    proc.wait()
+
+    def running():
+        alive = []
+        for p in below:
+            try:
+                if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
+                    alive.append(p.name())
+            except psutil.NoSuchProcess:
+                pass
+        return alive
+    deadline = time.time() + 20
+    while running() and time.time() < deadline:
+        time.sleep(0.2)
+    assert running() == []

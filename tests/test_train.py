@@ -209,6 +209,14 @@ def test_checkpoint_reloads_and_predicts_the_same(trained, synth):
         assert torch.equal(model(x)["seg"], ref(x)["seg"])
 
 
+def test_checkpoints_hold_only_tensors_and_plain_values(trained):
+    """What train writes loads with torch's weights_only unpickler and nothing allowed
+    beyond its defaults (glsynth never unpickles code from a model file)."""
+    path, _ = trained
+    ck = torch.load(path, map_location="cpu", weights_only=True)
+    assert ck["format"] == "glsynth-segnet" and type(ck["torch"]) is str
+
+
 def test_interrupted_training_resumes_to_the_same_weights(synth, tmp_path):
     kw = dict(FAST, size=48, epochs=2, seed=5, batch_size=2)  # 2 batches per epoch
     full = train(synth, tmp_path / "a.pt", **kw)

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from ..errors import InputError
 from ..io.images import ImageError, read_rgb
 from .lesions import fractal_noise
 
@@ -21,7 +22,7 @@ log = logging.getLogger(__name__)
 BACKGROUND_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 
 
-class BackgroundError(ValueError):
+class BackgroundError(InputError):
     """A background folder holds no usable image, or a view size is invalid."""
 
 

@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import hashlib
 import importlib.metadata
+import io
 import json
 import logging
 import os
-import tempfile
 import time
 from dataclasses import dataclass
 from functools import lru_cache
@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..io.images import write_bytes
 from ..mesh import Mesh, SkinSurface
 from . import anatomy, detail, hairflow, skin
 from .colour import fitzpatrick_from_ita
@@ -88,17 +89,17 @@ def make_body(seed=0, fitzpatrick=None, ita=None, phenotype=None, pose=None, clo
     args = {"seed": int(seed), "fitzpatrick": fitzpatrick, "ita": ita, "phenotype": phenotype,
             "pose": pose, "clothing": clothing, "texture_size": int(texture_size)}
     _check_args(args)
-    path = _cache_path(args, cache_dir)
-    if path is not None and path.exists():
+    key = _cache_key(args)
+    path = _cache_path(args, key, cache_dir)
+    if path.exists():
         try:
-            return _load(path)
-        except Exception as exc:  # a corrupt or foreign file: rebuild it
-            log.warning("body cache %s unreadable (%s); rebuilding", path, exc)
+            return _load(path, key, args)
+        except Exception as exc:  # a corrupt or foreign file: rebuilt and replaced
+            log.warning("body cache %s unusable (%s); rebuilding it", path, exc)
     t0 = time.perf_counter()
     arrays = _build(**args)
     log.info("built body seed=%d in %.1f s", args["seed"], time.perf_counter() - t0)
-    if path is not None:
-        _save(path, arrays)
+    _save(path, {**arrays, "cache_key": np.array(key)})
     return _from_arrays(arrays)
 
 
@@ -244,36 +245,61 @@ def _code_hash() -> str:
     return h.hexdigest()[:16]
 
 
-def _cache_path(args, cache_dir):
+def _cache_key(args) -> str:
+    return json.dumps({"args": args, "glsynth": __version__, "anny": _anny_version(),
+                       "code": _code_hash()}, sort_keys=True, default=str)
+
+
+def _cache_path(args, key, cache_dir):
     root = cache_dir or os.environ.get("GLSYNTH_CACHE") or Path.home() / ".cache" / "glsynth"
-    key = json.dumps({"args": args, "glsynth": __version__, "anny": _anny_version(),
-                      "code": _code_hash()}, sort_keys=True, default=str)
     digest = hashlib.sha256(key.encode()).hexdigest()[:24]
     return Path(root) / "bodies" / f"body-{args['seed']}-{digest}.npz"
 
 
 def _save(path: Path, arrays: dict):
+    buf = io.BytesIO()
+    np.savez_compressed(buf, meta=np.array(json.dumps(arrays["meta"])),
+                        **{k: v for k, v in arrays.items() if k != "meta"})
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(fh, meta=np.array(json.dumps(arrays["meta"])),
-                                    **{k: v for k, v in arrays.items() if k != "meta"})
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
+        write_bytes(path, buf.getbuffer())
     except OSError as exc:
         log.warning("could not cache body at %s: %s", path, exc)
 
 
-def _load(path: Path) -> Body:
+def _load(path: Path, key: str, args: dict) -> Body:
+    """The cached body, checked: a file of other arguments (another body's, copied or
+    renamed) or with arrays of the wrong shape raises ValueError."""
     with np.load(path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}
+    if "cache_key" not in arrays or str(arrays.pop("cache_key")) != key:
+        raise ValueError("written for other arguments (another body's file?)")
     arrays["meta"] = json.loads(str(arrays["meta"]))
+    problem = _shape_problem(arrays, args["texture_size"])
+    if problem:
+        raise ValueError(problem)
     return _from_arrays(arrays)
+
+
+def _shape_problem(a: dict, size: int):
+    """What is wrong with the arrays of a cached body, or None."""
+    missing = {"vertices", "faces", "uvs", "face_uvs", "texture", "nonskin", "features",
+               "anatomy", "nevi"} - set(a)
+    if missing:
+        return f"missing arrays {sorted(missing)}"
+    v, f, t, ft = a["vertices"], a["faces"], a["uvs"], a["face_uvs"]
+    checks = {
+        "vertices": v.ndim == 2 and v.shape[1] == 3 and len(v) > 0 and np.isfinite(v).all(),
+        "faces": f.ndim == 2 and f.shape[1] == 3 and f.size > 0 and 0 <= f.min() and f.max() < len(v),
+        "uvs": t.ndim == 2 and t.shape[1] == 2,
+        "face_uvs": ft.shape == f.shape and 0 <= ft.min() and ft.max() < len(t),
+        "texture": a["texture"].shape == (size, size, 3) and a["texture"].dtype == np.uint8,
+        "nonskin": a["nonskin"].shape[:2] == (size, size),
+        "features": a["features"].shape[:2] == (size, size),
+        "anatomy": a["anatomy"].shape == (len(v),),
+        "nevi": a["nevi"].ndim == 2 and a["nevi"].shape[1] == 4,
+    }
+    bad = [k for k, ok in checks.items() if not ok]
+    return f"arrays of the wrong shape or content: {', '.join(bad)}" if bad else None
 
 
 def _from_arrays(a: dict) -> Body:

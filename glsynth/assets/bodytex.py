@@ -58,14 +58,7 @@ def load_bodytex(folder, nonskin=None, anatomy=None, nevi=None) -> Body:
     an array; nevi: path of a nevus CSV or a list of [x0, y0, x1, y1] boxes.
     """
     folder = os.fspath(folder)
-    if not os.path.isdir(folder):
-        raise BodyError(f"{folder}: scan folder not found")
-    obj = os.path.join(folder, OBJ_NAME)
-    if not os.path.isfile(obj):
-        objs = sorted(n for n in os.listdir(folder) if n.lower().endswith(".obj"))
-        if len(objs) != 1:
-            raise BodyError(f"{folder}: no {OBJ_NAME} (and {len(objs)} other .obj files)")
-        obj = os.path.join(folder, objs[0])
+    obj = scan_mesh_path(folder)
     stem = os.path.splitext(obj)[0]
 
     mesh = Mesh.load(obj, require_texture=False)
@@ -105,6 +98,20 @@ def load_bodytex(folder, nonskin=None, anatomy=None, nevi=None) -> Body:
             "units": "metres (3DBodyTex normalized scan, not rescaled)",
             "height_m": float(np.ptp(mesh.vertices[:, 1]))}
     return Body(mesh=mesh, nonskin=nonskin_map, anatomy=labels, nevi=boxes, meta=meta)
+
+
+def scan_mesh_path(folder) -> str:
+    """The OBJ of a 3DBodyTex-layout scan folder (BodyError when there is none, or several)."""
+    folder = os.fspath(folder)
+    if not os.path.isdir(folder):
+        raise BodyError(f"{folder}: scan folder not found")
+    obj = os.path.join(folder, OBJ_NAME)
+    if not os.path.isfile(obj):
+        objs = sorted(n for n in os.listdir(folder) if n.lower().endswith(".obj"))
+        if len(objs) != 1:
+            raise BodyError(f"{folder}: no {OBJ_NAME} (and {len(objs)} other .obj files)")
+        obj = os.path.join(folder, objs[0])
+    return obj
 
 
 def load_mesh_body(path, nonskin=None, anatomy=None, scale_to_height=None,

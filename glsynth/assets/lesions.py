@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from ..errors import InputError
 from ..io.images import ImageError, read_mask, read_rgb
 from .colour import ita_range, lab_to_uint8, shades_of_gray
 
@@ -33,14 +34,32 @@ _MASK_DIRS = {"masks", "mask", "labels", "segmentations", "groundtruth", "ground
 # Files in those datasets that are neither images nor lesion masks (ISIC superpixels, PH2 ROIs).
 _IGNORE = re.compile(r"(_superpixels|_R\d+_Label\d+)$", re.I)
 _CSV_KEYS = ("name", "image_id", "image", "isic_id", "md5hash", "id")
+MIN_SIZE = 16              # px, shorter side of a lesion image (config lesions.min_size)
+MAX_MASK_FRACTION = 0.95   # of its image a mask may cover (config lesions.max_mask_fraction)
 
 
-class LesionError(ValueError):
+class LesionError(InputError):
     """A lesion image or mask is unusable; the message names the file and the problem."""
 
 
-class EmptyMaskError(LesionError):
+class RejectedLesionError(LesionError):
+    """A readable lesion that cannot be pasted; a lesion set skips it, counted by ``reason``."""
+    reason = "rejected"
+
+
+class EmptyMaskError(RejectedLesionError):
     """The lesion mask has no set pixel."""
+    reason = "with empty lesion masks"
+
+
+class LesionTooSmallError(RejectedLesionError):
+    """The lesion image is smaller than the minimum size."""
+    reason = "with images below the minimum size"
+
+
+class MaskTooLargeError(RejectedLesionError):
+    """The mask covers (nearly) the whole image: no skin around the lesion."""
+    reason = "with masks covering nearly the whole image"
 
 
 @dataclass
@@ -105,9 +124,11 @@ def crop_box(mask: np.ndarray, margin: float = CROP_MARGIN) -> tuple[int, int, i
     return max(0, x0 - mx), max(0, y0 - my), min(w, x1 + mx), min(h, y1 + my)
 
 
-def load_lesion(image_path, mask_path, lesion_id=None, meta=None,
-                colour_constancy=False) -> Lesion:
-    """Read one image and its lesion mask, check them, and crop around the lesion."""
+def load_lesion(image_path, mask_path, lesion_id=None, meta=None, colour_constancy=False,
+                min_size=MIN_SIZE, max_mask_fraction=MAX_MASK_FRACTION) -> Lesion:
+    """Read one image and its lesion mask, check them, and crop around the lesion.
+    Images with a side below ``min_size`` pixels and masks covering more than
+    ``max_mask_fraction`` of the image raise a RejectedLesionError saying why."""
     image_path, mask_path = os.fspath(image_path), os.fspath(mask_path)
     try:
         img = read_rgb(image_path)
@@ -117,11 +138,18 @@ def load_lesion(image_path, mask_path, lesion_id=None, meta=None,
         mask = read_mask(mask_path)
     except ImageError as e:
         raise LesionError(f"lesion mask {e}") from None
+    if min(img.shape[:2]) < min_size:
+        raise LesionTooSmallError(f"{image_path}: image is {img.shape[1]}x{img.shape[0]} pixels, "
+                                  f"below the minimum lesion size ({min_size} px, lesions.min_size)")
     if mask.shape != img.shape[:2]:
         raise LesionError(f"{mask_path}: mask size {mask.shape[1]}x{mask.shape[0]} differs from "
                           f"image {image_path} size {img.shape[1]}x{img.shape[0]}")
     if not mask.any():
         raise EmptyMaskError(f"{mask_path}: mask is empty (no lesion pixels)")
+    if mask.mean() > max_mask_fraction:
+        raise MaskTooLargeError(f"{mask_path}: mask covers {mask.mean():.0%} of the image (more than "
+                                f"lesions.max_mask_fraction {max_mask_fraction:g}), leaving no skin "
+                                "around the lesion; is it inverted?")
     if mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any():
         log.warning("%s: lesion mask touches the image border; the lesion may be cut off", mask_path)
     if colour_constancy:
@@ -151,8 +179,10 @@ class LesionSet(Sequence):
     (and check) each lesion when it is indexed. ``skipped`` counts skipped folders/images
     by reason."""
 
-    def __init__(self, path, entries, colour_constancy=False, lazy=False, skipped=None):
+    def __init__(self, path, entries, colour_constancy=False, lazy=False, skipped=None,
+                 min_size=MIN_SIZE, max_mask_fraction=MAX_MASK_FRACTION):
         self.path, self.colour_constancy, self.lazy = os.fspath(path), colour_constancy, lazy
+        self.limits = {"min_size": min_size, "max_mask_fraction": max_mask_fraction}
         self.skipped = Counter(skipped or {})
         self._loaded = None
         if not lazy:
@@ -161,9 +191,9 @@ class LesionSet(Sequence):
                 try:
                     self._loaded.append(self._load(e))
                     kept.append(e)
-                except EmptyMaskError as err:
+                except RejectedLesionError as err:
                     log.warning("%s; skipped", err)
-                    self.skipped["with empty lesion masks"] += 1
+                    self.skipped[err.reason] += 1
             entries = kept
         self.entries = entries
 
@@ -184,15 +214,18 @@ class LesionSet(Sequence):
         for mask_path in e.mask_paths[:-1]:
             try:
                 if read_mask(mask_path).any():
-                    return load_lesion(e.image_path, mask_path, e.id, e.meta, self.colour_constancy)
+                    return load_lesion(e.image_path, mask_path, e.id, e.meta, self.colour_constancy,
+                                       **self.limits)
             except ImageError as err:
                 raise LesionError(f"lesion mask {err}") from None
             log.info("%s: empty, trying the next mask", mask_path)
-        return load_lesion(e.image_path, e.mask_paths[-1], e.id, e.meta, self.colour_constancy)
+        return load_lesion(e.image_path, e.mask_paths[-1], e.id, e.meta, self.colour_constancy,
+                           **self.limits)
 
 
 def load_lesions(path, layout: str = "fitz17k", colour_constancy: bool = False,
-                 lazy: bool = False, image_dir=None) -> LesionSet:
+                 lazy: bool = False, image_dir=None, min_size=MIN_SIZE,
+                 max_mask_fraction=MAX_MASK_FRACTION) -> LesionSet:
     """Load skin conditions with masks from `path`.
 
     layout "fitz17k": one folder per image id (folders may be nested one level, e.g. per
@@ -206,8 +239,10 @@ def load_lesions(path, layout: str = "fitz17k", colour_constancy: bool = False,
     Any ``*.csv`` directly in `path` with a ``name`` (or ``image_id``/``md5hash``) column
     adds its row to each lesion's meta.
 
-    lazy=False reads and checks every lesion now: lesions whose masks are all empty are
-    skipped (counted in ``.skipped``), any other bad file raises LesionError. lazy=True only
+    lazy=False reads and checks every lesion now: lesions whose masks are all empty, whose
+    image has a side below ``min_size`` px or whose mask covers more than
+    ``max_mask_fraction`` of the image are skipped (counted in ``.skipped`` by reason), any
+    other bad file raises LesionError. lazy=True only
     indexes the files (use it for large sets such as ISIC); errors come when indexing.
     Raises LesionError naming `path` and the skip reasons if no usable lesion remains.
     """
@@ -225,7 +260,7 @@ def load_lesions(path, layout: str = "fitz17k", colour_constancy: bool = False,
         row = rows.get(e.meta.get("image_id", e.id)) or rows.get(os.path.basename(e.image_path))
         if row:
             e.meta.update(row)
-    lesions = LesionSet(path, entries, colour_constancy, lazy, skipped)
+    lesions = LesionSet(path, entries, colour_constancy, lazy, skipped, min_size, max_mask_fraction)
     for reason, n in lesions.skipped.items():
         log.warning("%s: skipped %d %s", path, n, reason)
     if not len(lesions):

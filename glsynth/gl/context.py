@@ -13,6 +13,8 @@ from collections import deque
 
 import moderngl
 
+from ..errors import UnavailableError
+
 log = logging.getLogger(__name__)
 
 BACKENDS = ("egl", "osmesa", "window")
@@ -25,7 +27,7 @@ _DEBIAN_HINT = {
 }
 
 
-class GLBackendError(RuntimeError):
+class GLBackendError(UnavailableError):
     """No OpenGL context could be created with the requested backend."""
 
 

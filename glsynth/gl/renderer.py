@@ -15,6 +15,7 @@ import moderngl
 import numpy as np
 
 from ..camera import Camera
+from ..errors import InputError
 from ..lighting import Material, PointLight, check_lights
 from ..mesh import Mesh
 from ..resources import shader_source, with_defines
@@ -662,7 +663,7 @@ class Renderer:
         if not 1 <= k <= MAX_SUPERSAMPLE:
             raise ValueError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {supersample}")
         if n < 0 or n > max(self.ctx.max_samples, 1) or (n > 1 and n & (n - 1)):
-            raise ValueError(f"multisample must be 0 or a power of two up to {self.ctx.max_samples} "
+            raise InputError(f"multisample must be 0 or a power of two up to {self.ctx.max_samples} "
                              f"(the most {self.info.get('GL_RENDERER')} supports), got {multisample}")
         return k, n
 

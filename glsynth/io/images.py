@@ -1,14 +1,18 @@
 """Image reading and atomic writing with errors that name the file."""
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
-import tempfile
+import secrets
 
 import cv2
 import numpy as np
 
+from ..errors import InputError, WriteError
 
-class ImageError(ValueError):
+
+class ImageError(InputError):
     """An image file is missing, unreadable or has the wrong shape/dtype."""
 
 
@@ -53,19 +57,69 @@ def read_mask(path) -> np.ndarray:
     return img > 0
 
 
-def _atomic(path, write):
+def write_bytes(path, data, durable=False):
+    """Atomically write ``data`` (bytes or any buffer) to ``path``.
+
+    The bytes go to a temporary file in the same folder, created with the mode the umask
+    asks for (as ``open`` would), every byte is checked written and the file closed
+    (``durable``: also fsync-ed, and the folder after the rename) before it is renamed
+    into place: a full disk or any other OSError leaves nothing under the final name
+    and raises :class:`WriteError` naming ``path``.
+    """
     path = os.fspath(path)
-    d = os.path.dirname(path) or "."
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=os.path.splitext(path)[1])
-    os.close(fd)
+    folder = os.path.dirname(path) or "."
     try:
-        write(tmp)
+        os.makedirs(folder, exist_ok=True)
+        fd, tmp = _create_temporary(folder, os.path.splitext(path)[1])
+    except OSError as exc:
+        raise WriteError(exc.errno, exc.strerror, path) from exc
+    try:
+        try:
+            view = memoryview(data).cast("B")
+            while view:
+                n = os.write(fd, view)
+                if n <= 0:
+                    raise OSError(errno.EIO, "the file system accepted no bytes")
+                view = view[n:]
+            if durable:
+                os.fsync(fd)
+        finally:
+            os.close(fd)  # NFS reports failed writes here
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, WriteError):
+            raise WriteError(exc.errno, exc.strerror, path) from exc
         raise
+    if durable:
+        _fsync_folder(folder)
+
+
+def _create_temporary(folder, suffix):
+    """(fd, path) of a new file in ``folder``; mode 0666 less the umask (mkstemp's 0600
+    would make every output unreadable to the rest of a group on shared storage)."""
+    for _ in range(100):
+        tmp = os.path.join(folder, f".tmp-{secrets.token_hex(6)}{suffix}")
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no free temporary file name", folder)
+
+
+def _fsync_folder(folder):
+    """Make a rename durable; some file systems cannot fsync a folder, which is fine."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 # Every row filtered by its difference to the row above, then run-length deflate: a 512^2
@@ -83,21 +137,11 @@ def write_png(path, img: np.ndarray):
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
 
-    def write(tmp):
-        ok, buf = cv2.imencode(".png", img, _PNG_PARAMS)
-        if not ok:
-            raise ImageError(f"{path}: PNG encoding failed for {img.dtype} {img.shape}")
-        buf.tofile(tmp)
-
-    _atomic(path, write)
+    ok, buf = cv2.imencode(".png", img, _PNG_PARAMS)
+    if not ok:
+        raise ImageError(f"{path}: PNG encoding failed for {img.dtype} {img.shape}")
+    write_bytes(path, buf)
 
 
-def write_bytes(path, data: bytes):
-    def write(tmp):
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-    _atomic(path, write)
-
-
-def write_text(path, text: str):
-    write_bytes(path, text.encode("utf-8"))
+def write_text(path, text: str, durable=False):
+    write_bytes(path, text.encode("utf-8"), durable=durable)

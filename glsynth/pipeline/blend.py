@@ -21,13 +21,14 @@ import torch.nn.functional as F
 
 from .. import diff
 from ..camera import Camera
+from ..errors import GlsynthError
 from .paste import PastedTextures, Placement
 from .poisson import crop_box
 
 log = logging.getLogger(__name__)
 
 
-class BlendError(RuntimeError):
+class BlendError(GlsynthError, RuntimeError):
     """The blend produced a non-finite value or cannot run with these settings."""
 
 

@@ -42,7 +42,33 @@ def load_body(cfg: Config, body_id: str):
                                 fitzpatrick=int(rng.integers(lo, hi + 1)),
                                 pose=str(rng.choice(cfg.bodies.poses)),
                                 texture_size=cfg.bodies.texture_size)
-    return assets.load_bodytex(os.path.join(cfg.bodies.source, body_id))
+    folder = os.path.join(cfg.bodies.source, body_id)
+    body = assets.load_bodytex(folder)
+    check_scale(body.mesh.vertices, folder)
+    return body
+
+
+# A person, in metres (the unit of paste.w, views.w and depth): from a small child to
+# well above the tallest adult, with room for a scan's props.
+PERSON_SIZE_M = (0.2, 4.0)
+_UNITS = {"millimetres": 1e-3, "centimetres": 1e-2, "inches": 0.0254, "feet": 0.3048,
+          "kilometres": 1e3}
+
+
+def check_scale(vertices, name):
+    """BodyError unless the mesh's largest extent is a person's size in metres; the
+    message guesses the unit the mesh is in."""
+    from ..assets.bodytex import BodyError
+    extent = float(np.ptp(np.asarray(vertices), axis=0).max())
+    lo, hi = PERSON_SIZE_M
+    if lo <= extent <= hi:
+        return
+    guess = ""
+    if extent > 0:
+        unit = min(_UNITS, key=lambda u: abs(np.log(extent * _UNITS[u] / 1.7)))
+        guess = f"; it looks like {unit}: scale its vertices by {_UNITS[unit]:g}"
+    raise BodyError(f"{name}: the body is {extent:.4g} units across, but glsynth works in metres "
+                    f"(a person is {lo}-{hi} m; paste.w and views.w are metres too){guess}")
 
 
 @dataclass

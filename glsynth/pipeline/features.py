@@ -14,6 +14,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..errors import ModelFileError
+from ..io.modelfile import load_torch_file
+
 log = logging.getLogger(__name__)
 
 # VGG16 "D" configuration; numbers are conv widths, "M" max-pooling.
@@ -110,17 +113,27 @@ def find_vgg_weights(path=None):
 
 def load_vgg16(path) -> VGG16Features:
     net = VGG16Features()
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise ValueError(f"{path}: not a readable torch state dict ({exc})") from None
+    state = load_torch_file(path, "VGG16 state dict")
+    if not isinstance(state, dict):
+        raise ModelFileError(f"{path}: not a VGG16 state dict (holds a {type(state).__name__})")
     wanted = {k for k in net.state_dict() if k.startswith("features.")}
     state = {k: v for k, v in state.items() if k in wanted}
     missing = wanted - set(state)
     if missing:
-        raise ValueError(f"{path}: not a VGG16 state dict (missing {sorted(missing)[:3]}...)")
+        raise ModelFileError(f"{path}: not a VGG16 state dict (missing {sorted(missing)[:3]}...)")
     net.load_state_dict(state, strict=False)
     return net.eval().requires_grad_(False)
+
+
+def vgg_weights_for(kind, weights=None):
+    """The VGG16 weights file blend.features ``kind`` will read (None: the filter bank)."""
+    if kind == "filters":
+        return None
+    path = find_vgg_weights(weights)
+    if path is None and kind == "vgg16":
+        raise FileNotFoundError("blend.features=vgg16 but no VGG16 weights: set blend.vgg_weights "
+                                f"or put vgg16-*.pth in {torch.hub.get_dir()}/checkpoints")
+    return path
 
 
 def make_extractor(kind="auto", weights=None):
@@ -128,11 +141,8 @@ def make_extractor(kind="auto", weights=None):
     filter bank with a warning), 'vgg16' (weights required) or 'filters'."""
     if kind == "filters":
         return FilterBankFeatures().eval(), "filters"
-    path = find_vgg_weights(weights)
+    path = vgg_weights_for(kind, weights)
     if path is None:
-        if kind == "vgg16":
-            raise FileNotFoundError("blend.features=vgg16 but no VGG16 weights: set blend.vgg_weights "
-                                    f"or put vgg16-*.pth in {torch.hub.get_dir()}/checkpoints")
         log.warning("no VGG16 ImageNet weights found (blend.vgg_weights or torch hub cache); "
                     "blending uses the weight-free filter-bank features")
         return FilterBankFeatures().eval(), "filters (no VGG16 weights found)"

@@ -22,12 +22,13 @@ import cv2
 import numpy as np
 
 from ..camera import Camera
+from ..errors import GlsynthError
 from .seeding import rng_for
 
 log = logging.getLogger(__name__)
 
 
-class PasteError(RuntimeError):
+class PasteError(GlsynthError, RuntimeError):
     """A body cannot take lesions (no skin, every place rejected...)."""
 
 

@@ -25,6 +25,9 @@ from collections import OrderedDict, deque
 
 from tqdm import tqdm
 
+from ..errors import GlsynthError, MissingDependencyError
+from .ray_reaper import Reaper
+
 try:
     import ray
     from ray.exceptions import RayActorError
@@ -42,15 +45,15 @@ STALL_WARN_S = 60                 # say so when nothing finished for this long
 ENV_PREFIXES = ("GLSYNTH_",)      # driver environment variables passed on to the actors
 
 
-class RayExecutorError(RuntimeError):
+class RayExecutorError(GlsynthError, RuntimeError):
     """The Ray executor could not finish the run (actors fail to start, a task keeps
     killing its actor)."""
 
 
 def _require_ray():
     if not has_ray:
-        raise ImportError("--executor ray needs Ray: pip install 'glsynth[ray]' "
-                          f"(import failed: {_RAY_IMPORT_ERROR})") from _RAY_IMPORT_ERROR
+        raise MissingDependencyError("--executor ray needs Ray: pip install 'glsynth[ray]' "
+                                     f"(import failed: {_RAY_IMPORT_ERROR})") from _RAY_IMPORT_ERROR
 
 
 if has_ray:
@@ -161,12 +164,15 @@ def run_ray(cfg, out, ids, chunks, workers, address=None):
     """
     _require_ray()
     out = os.path.abspath(os.fspath(out))
-    started_here = False
+    started_here, reaper = False, None
     if not ray.is_initialized():
         if address:
             ray.init(address=address)
         else:
+            # a local instance is ours: nothing of it may outlive this process
+            reaper = Reaper()
             ray.init(num_cpus=max(os.cpu_count() or 1, workers), include_dashboard=False)
+            reaper.watch()
         started_here = True
     pool = None
     try:
@@ -174,6 +180,8 @@ def run_ray(cfg, out, ids, chunks, workers, address=None):
         pool = _Pool(cfg.to_dict(), out, workers, run_id, _actor_options(workers))
         reports = _schedule(pool, [[b] for b in ids], "prepare", "paste + blend", "body",
                             affinity=False)
+        if reaper is not None:
+            reaper.watch()  # the actors' processes too
         reports += _schedule(pool, chunks, "render", "views", "img", affinity=True)
         if pool.deaths:
             # writes a killed actor never renamed into place; every task is finished now
@@ -187,6 +195,8 @@ def run_ray(cfg, out, ids, chunks, workers, address=None):
             pool.shutdown()
         if started_here:
             ray.shutdown()
+        if reaper is not None:
+            reaper.close()
 
 
 def _schedule(pool, jobs, method, desc, unit, affinity):

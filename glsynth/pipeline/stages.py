@@ -24,10 +24,13 @@ from tqdm import tqdm
 
 from .. import __version__
 from ..config import Config
+from ..errors import InputError
 from ..io.images import read_rgb, write_png, write_text
 from . import views as V
 from .bodies import TexelGeometry, body_ids, load_body
+from .inputs import Inputs, background_source, lesion_source, open_inputs
 from .paste import PasteError, PasteSettings, PastedTextures, paste_lesions
+from .runlock import open_run
 from .seeding import rng_for, torch_seed
 from .writer import finalize, sample_done, write_sample
 
@@ -41,8 +44,11 @@ class _Stage:
     behind (llvmpipe keeps ~0.2 GB of textures per body in a context). A renderer
     passed in is the caller's to close."""
 
-    def __init__(self, config: Config, out, renderer=None, body_subset=None):
+    def __init__(self, config: Config, out, renderer=None, body_subset=None,
+                 inputs: Inputs | None = None):
         self.cfg, self.out = config, os.fspath(out)
+        inputs = inputs or Inputs()  # sources opened already (else each stage opens its own)
+        self._lesions, self._backgrounds = inputs.lesions, inputs.backgrounds
         self._renderer = renderer
         self._owns_renderer = renderer is None
         self.body_ids = body_subset if body_subset is not None else body_ids(config)
@@ -76,23 +82,6 @@ class _Stage:
             self.timings[name] = self.timings.get(name, 0.0) + seconds
 
 
-def lesion_source(cfg: Config):
-    from .. import assets
-    le = cfg.lesions
-    if le.source == "procedural":
-        n = max(le.per_body * cfg.bodies.count, 1)
-        return assets.procedural_lesions(n, seed=cfg.seed)
-    return assets.load_lesions(le.source, layout=le.layout, colour_constancy=le.colour_constancy)
-
-
-def background_source(cfg: Config):
-    from .. import assets
-    b = cfg.backgrounds
-    if b.source == "procedural":
-        return assets.procedural_backgrounds(b.count, seed=cfg.seed, size=cfg.views.size)
-    return assets.load_backgrounds(b.source)
-
-
 class SelectAndPaste(_Stage):
     """Place ``lesions.per_body`` lesions on every body (skipping bodies done before)."""
 
@@ -105,7 +94,7 @@ class SelectAndPaste(_Stage):
         if cfg.lesions.per_body == 0:
             log.info("lesions.per_body is 0: nothing to paste")
             return
-        lesions = getattr(self, "_lesions", None)  # a worker keeps it across bodies
+        lesions = self._lesions  # a worker keeps it across bodies
         p = cfg.paste
         settings = PasteSettings(p.view_size, p.fov_deg, tuple(p.w), p.max_depth_change,
                                  p.dilation, p.attempts, tuple(cfg.lesions.size))
@@ -203,7 +192,7 @@ class Generate2DViews(_Stage):
         self.renderer  # made here, on the thread that renders (the helper thread stages)
         if todo:  # the first body loads in the helper thread while the backgrounds are made
             self._load_body_ahead(todo[0][0])
-        if getattr(self, "_backgrounds", None) is None:
+        if self._backgrounds is None:
             self._backgrounds = background_source(self.cfg)
         # Python's cyclic collector kept walking every object torch, the modules and the
         # loaded assets hold (~4% of a run's CPU in perf); frozen, it scans only what the
@@ -457,13 +446,13 @@ def _jsonable(obj):
 class _Worker:
     """One process's share of a run: its own GL context, stages and loaded body."""
 
-    def __init__(self, cfg: Config, out, writer_threads=None):
+    def __init__(self, cfg: Config, out, writer_threads=None, inputs: Inputs | None = None):
         from ..gl.renderer import Renderer
         size = max(cfg.paste.view_size, cfg.views.size)
         renderer = Renderer(size, size)
-        self.paste = SelectAndPaste(cfg, out, renderer=renderer, body_subset=[])
+        self.paste = SelectAndPaste(cfg, out, renderer=renderer, body_subset=[], inputs=inputs)
         self.blend = BlendLesions(cfg, out, renderer=renderer, body_subset=[])
-        self.views = Generate2DViews(cfg, out, renderer=renderer, body_subset=[])
+        self.views = Generate2DViews(cfg, out, renderer=renderer, body_subset=[], inputs=inputs)
         if writer_threads is not None:  # a process's share of the cores caps the default
             self.views.writer_threads = min(Generate2DViews.writer_threads, writer_threads)
         self.cfg = cfg
@@ -516,7 +505,9 @@ def share_cores(threads: int):
 
 def _worker_init(cfg_dict, out, threads):
     global _PROCESS_WORKER
+    import signal
     from ..config import from_dict
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle
     logging.basicConfig(level=logging.WARNING)
     share_cores(threads)
     _PROCESS_WORKER = _Worker(from_dict(cfg_dict), out, writer_threads=threads)
@@ -541,20 +532,25 @@ def generate(cfg: Config, out, resume=False, workers=1, executor="local", addres
     Every random choice is keyed by the task, so the files are the same for any
     number of workers. ``executor="ray"`` spreads the same tasks over Ray actors
     (``address``: an existing cluster; None starts a local one).
+
+    ``out`` holds one run (``runlock``): a folder with a run in it needs ``resume``,
+    which continues it only with the same config, seed and glsynth version, and no
+    other process may write there meanwhile.
     """
     out = os.fspath(out)
     if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+        raise InputError(f"workers must be >= 1, got {workers}")
     if executor not in EXECUTORS:
-        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
-    if os.path.isdir(out) and os.listdir(out) and not resume:
-        if os.path.isfile(os.path.join(out, "manifest.json")) or any(
-                os.path.isdir(os.path.join(out, d)) for d in ("targets", "images")):
-            raise FileExistsError(f"{out}: output folder is not empty; pass --resume to continue "
-                                  "the run there, or choose another folder")
-    os.makedirs(out, exist_ok=True)
+        raise InputError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+    # one run per folder: locked, and its fingerprint written first or checked
+    with open_run(out, cfg, resume):
+        return _generate(cfg, out, resume, workers, executor, address)
+
+
+def _generate(cfg, out, resume, workers, executor, address):
     if resume:
         _remove_partial_writes(out)
+    inputs = open_inputs(cfg)  # every input file checked before any stage works
     t_start = time.perf_counter()
     ids = body_ids(cfg)
     tasks = [(b, j) for b in ids for j in range(cfg.views.per_body)]
@@ -565,7 +561,7 @@ def generate(cfg: Config, out, resume=False, workers=1, executor="local", addres
         from .ray_executor import run_ray
         reports = run_ray(cfg, out, ids, chunks, workers, address)
     elif workers == 1:
-        worker = _Worker(cfg, out)
+        worker = _Worker(cfg, out, inputs=inputs)
         try:
             reports += [worker.prepare(b) for b in tqdm(ids, desc="paste + blend", unit="body")]
             # one call for all views: the stage then loads each next body while rendering

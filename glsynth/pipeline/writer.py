@@ -99,7 +99,8 @@ def finalize(out_dir, manifest: dict):
         writer.writerows(rows)
         write_text(os.path.join(out_dir, "params.csv"), buf.getvalue())
     manifest["counts"] = {"images": len(ids), "lesion_annotations": len(coco["annotations"])}
-    write_text(os.path.join(out_dir, "manifest.json"), json.dumps(manifest, indent=1, sort_keys=True))
+    write_text(os.path.join(out_dir, "manifest.json"), json.dumps(manifest, indent=1, sort_keys=True),
+               durable=True)
 
 
 def _coco_entries(tgt, sid):

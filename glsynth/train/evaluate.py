@@ -26,7 +26,8 @@ import torch
 import torch.nn.functional as F
 
 from ..assets.lesions import load_lesions
-from ..io.images import read_mask, read_rgb, write_png, write_text
+from ..errors import InputError
+from ..io.images import ImageError, read_mask, read_rgb, write_png, write_text
 from .data import preprocess
 from .detection import detection_scores, mask_boxes
 from .metrics import dice, jaccard
@@ -85,7 +86,7 @@ def truth_map(shape, masks: dict) -> np.ndarray:
     """HxW uint8: 0 lesion, 1 skin, 2 non-skin; 3 = unknown (pairs: everything off the lesion)."""
     les = read_mask(masks["lesion"])
     if les.shape != tuple(shape):
-        raise ValueError(f"{masks['lesion']}: mask {les.shape} does not match image {tuple(shape)}")
+        raise ImageError(f"{masks['lesion']}: mask {les.shape} does not match image {tuple(shape)}")
     if "nonskin" not in masks:
         t = np.full(shape, 3, np.uint8)
     else:
@@ -93,7 +94,7 @@ def truth_map(shape, masks: dict) -> np.ndarray:
         if masks["nonskin"]:
             ns = read_mask(masks["nonskin"])
             if ns.shape != tuple(shape):
-                raise ValueError(f"{masks['nonskin']}: mask {ns.shape} does not match image {tuple(shape)}")
+                raise ImageError(f"{masks['nonskin']}: mask {ns.shape} does not match image {tuple(shape)}")
             t[ns] = 2
     t[les] = 0  # a pixel marked both lesion and non-skin counts as lesion
     return t
@@ -201,7 +202,7 @@ def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, 
     summary.json and grid.png to `out`. Returns the summary dict (``extra`` is merged
     into it before it is written)."""
     if layout not in ("fitz17k", "pairs"):
-        raise ValueError(f"unknown layout {layout!r} (expected 'fitz17k' or 'pairs')")
+        raise InputError(f"unknown layout {layout!r} (expected 'fitz17k' or 'pairs')")
     model, ck = load_model(model_path, device)
     size = int(size or ck["hparams"]["size"])
     samples = real_samples(real, layout, with_meta=True)

@@ -9,10 +9,10 @@ file in the same folder, then rename): at the end of every epoch, every
 """
 from __future__ import annotations
 
+import io
 import logging
 import math
 import os
-import tempfile
 import time
 
 import cv2
@@ -20,6 +20,9 @@ import numpy as np
 import torch
 
 from ..dataset import SynthDataset
+from ..errors import InputError, ModelFileError, UnavailableError
+from ..io.images import write_bytes
+from ..io.modelfile import load_torch_file
 from . import data as D
 from .loss import fuzzy_jaccard_loss, nevi_ignore_mask, seg_jaccard_loss
 from .model import SegNet, count_parameters
@@ -68,7 +71,7 @@ class TrainSet(torch.utils.data.Dataset):
         self.index = [(k, j) for k, s in enumerate(self.sets) for j in range(len(s))]
         self.real = real
         if not self.index and not (real and len(real)):
-            raise ValueError(f"no samples in {', '.join(map(str, roots)) or 'the training data'}")
+            raise InputError(f"no samples in {', '.join(map(str, roots)) or 'the training data'}")
         self.size, self.seed, self.aug = size, seed, augment
 
     def __len__(self):
@@ -121,19 +124,10 @@ def epoch_batches(n_synth, n_real, batch_size, real_ratio, seed, epoch) -> list:
 
 
 def save_checkpoint(path, state: dict):
-    """torch.save to a temporary file next to `path`, then rename (atomic)."""
-    path = os.fspath(path)
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=".pt")
-    os.close(fd)
-    try:
-        torch.save(state, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """torch.save, then an atomic, fsync-ed write of the bytes (glsynth.io.images)."""
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    write_bytes(path, buf.getbuffer(), durable=True)
 
 
 def build_model(arch: dict) -> SegNet:
@@ -141,11 +135,17 @@ def build_model(arch: dict) -> SegNet:
                   width=arch.get("width", 1.0), depth=arch.get("depth", 0))
 
 
+def read_checkpoint(path) -> dict:
+    """A checkpoint written by ``train`` (read with weights_only: no code runs)."""
+    ck = load_torch_file(path, "checkpoint")
+    if not isinstance(ck, dict) or ck.get("format") != FORMAT:
+        raise ModelFileError(f"{path}: not a glsynth segmentation checkpoint")
+    return ck
+
+
 def load_model(path, device="cpu"):
     """(model in eval mode, checkpoint dict) from a checkpoint written by ``train``."""
-    ck = torch.load(os.fspath(path), map_location="cpu", weights_only=False)
-    if not isinstance(ck, dict) or ck.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a glsynth segmentation checkpoint")
+    ck = read_checkpoint(path)
     model = build_model(ck["arch"])
     model.load_state_dict(ck["model"])
     return model.to(device).eval(), ck
@@ -154,8 +154,10 @@ def load_model(path, device="cpu"):
 def init_weights(model, path):
     """Load matching weights from a local checkpoint (ours, or a plain state dict);
     parameters whose names or shapes differ keep their initial values."""
-    ck = torch.load(os.fspath(path), map_location="cpu", weights_only=False)
+    ck = load_torch_file(path, "checkpoint or state dict")
     sd = ck.get("model", ck) if isinstance(ck, dict) else ck
+    if not isinstance(sd, dict):
+        raise ModelFileError(f"{path}: neither a glsynth checkpoint nor a state dict")
     own = model.state_dict()
     ok = {k: v for k, v in sd.items() if k in own and getattr(v, "shape", None) == own[k].shape}
     model.load_state_dict(ok, strict=False)
@@ -231,16 +233,14 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
     out = os.fspath(out)
     roots = [os.fspath(d) for d in ([data] if isinstance(data, (str, os.PathLike)) else (data or []))]
     if device == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("--device cuda: CUDA is not available")
+        raise UnavailableError("--device cuda: CUDA is not available")
     if not 0 <= real_ratio <= 1:
-        raise ValueError(f"real_ratio must be in [0, 1], got {real_ratio}")
+        raise InputError(f"real_ratio must be in [0, 1], got {real_ratio}")
     ck = None
     if os.path.exists(out):
         if not resume:
             raise FileExistsError(f"{out} exists; pass --resume to continue it or choose another --out")
-        ck = torch.load(out, map_location="cpu", weights_only=False)
-        if ck.get("format") != FORMAT:
-            raise ValueError(f"{out}: not a glsynth segmentation checkpoint")
+        ck = read_checkpoint(out)
         h = ck["hparams"]
         size, batch_size, lr, weight_decay = h["size"], h["batch_size"], h["lr"], h["weight_decay"]
         seed, width, anatomy_weight, augment = h["seed"], h["width"], h["anatomy_weight"], h["augment"]
@@ -296,7 +296,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
                 "n_parameters": count_parameters(model), "preprocessing": {
                     "colour_constancy": "shades_of_gray(p=6)", "mean": D.MEAN.tolist(),
                     "std": D.STD.tolist(), "resize": "shorter side = size"},
-                "saved": reason, "torch": torch.__version__}
+                "saved": reason, "torch": str(torch.__version__)}
 
     def validate():
         """Score on the validation images; keep the best weights in best_path(out)."""
