@@ -29,8 +29,6 @@
 #endif
 #define PI 3.14159265
 #define F0 0.028
-#define SLOPE_RANGE 1.5
-#define ALBEDO_RANGE 0.5
 #define HAIR_RATIO 1.618   // scale of the second hair layer
 uniform sampler2D u_texture;       // sRGB albedo, alpha = detail weight
 uniform vec3 u_eye;
@@ -42,7 +40,7 @@ uniform float u_oil;               // 0..1, scales the oiliness map
 uniform float u_wrap;              // Material.wrap
 #if DETAIL
 uniform sampler2D u_params;        // R relief, G pores, B hair density, A oiliness
-uniform sampler2D u_relief;        // relief tile: RG slope, B cavity, A pore
+uniform sampler2D u_relief;        // relief tile (half floats): RG slope, B albedo change, A pore
 uniform float u_relief_period;     // scene units per relief tile
 uniform float u_relief_size;       // texels per relief tile
 uniform float u_pixel_angle;       // footprint of a pixel per unit of depth
@@ -100,9 +98,7 @@ void main() {
     vec4 px = textureLod(u_relief, world.zy / u_relief_period, lod);
     vec4 py = textureLod(u_relief, world.xz / u_relief_period, lod);
     vec4 pz = textureLod(u_relief, world.xy / u_relief_period, lod);
-    vec2 sx = (px.rg - 0.5) * (2.0 * SLOPE_RANGE);
-    vec2 sy = (py.rg - 0.5) * (2.0 * SLOPE_RANGE);
-    vec2 sz = (pz.rg - 0.5) * (2.0 * SLOPE_RANGE);
+    vec2 sx = px.rg, sy = py.rg, sz = pz.rg;
     // the height gradient of each projection in world axes, blended, then kept in the
     // tangent plane (the surface gradient)
     vec3 grad = w.x * vec3(0.0, sx.y, sx.x) + w.y * vec3(sy.x, 0.0, sy.y) + w.z * vec3(sz.x, sz.y, 0.0);
@@ -112,7 +108,7 @@ void main() {
     n = nd / max(length(nd), 1e-20);
     // albedo: furrow darkening and melanin speckle (mean 0 over the tile), pores (their
     // mean darkening over the tile, u_pore_mean, given back so far views keep the colour)
-    float tone = (dot(w, vec3(px.b, py.b, pz.b)) - 0.5) * (2.0 * ALBEDO_RANGE);
+    float tone = dot(w, vec3(px.b, py.b, pz.b));
     float pore = dot(w, vec3(px.a, py.a, pz.a));
     albedo *= (1.0 + min(relief, 1.0) * tone) * (1.0 - 0.6 * prm.g * (pore - u_pore_mean));
 #if HAIR

@@ -7,9 +7,10 @@ views see their average and close-ups their structure:
 * the **relief tile** (``RELIEF_PERIOD`` metres square) holds the skin's microrelief: a
   network of primary furrows (the rhombic/polygonal "glyphic" pattern, cells ~0.7 mm)
   and finer secondary furrows inside the cells, pores at furrow junctions, and a fine
-  roughness. Channels: R, G the height slope along the tile's x and y (``SLOPE_RANGE``
-  maps to 0..255), B the relative albedo change (darker furrows, melanin speckle; mean
-  0 over the tile, ``ALBEDO_RANGE`` maps to 0..255), A the pore opening (0..1);
+  roughness. Half floats: R, G the height slope along the tile's x and y, B the relative
+  albedo change (darker furrows, melanin speckle; mean 0 over the tile), A the pore
+  opening (0..1). Floats keep the tile's means exact (8 bits would tilt a far view's
+  normal by the rounding of the mean slope);
   the shader projects it on the surface three times (triplanar, from 3D positions), so it
   needs no UVs and has no seams.
 * the **hair tile** (``HAIR_PERIOD`` metres square) holds hair strands lying along the
@@ -35,8 +36,6 @@ RELIEF_PERIOD = 0.008     # metres covered by one relief tile
 RELIEF_SIZE = 1024        # texels (7.8 um each)
 HAIR_PERIOD = 0.016       # metres covered by one hair tile
 HAIR_SIZE = 2048          # texels (7.8 um each)
-SLOPE_RANGE = 1.5         # |dh/dx| stored in the relief tile's R, G (0..255 <-> -1.5..1.5)
-ALBEDO_RANGE = 0.5        # relative albedo change stored in its B (0..255 <-> -0.5..0.5)
 DETAIL_VERSION = 1        # part of the body cache key: bump when the tiles change
 # skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
 # only, moderate sebum (RGBA: relief, pores, hair density, oiliness)
@@ -45,7 +44,8 @@ DEFAULT_PARAMS = (140, 80, 64, 100)
 
 @dataclass(frozen=True)
 class DetailTiles:
-    """The two tiles (uint8 RGBA, row 0 = tile y 0) and their physical periods."""
+    """The two tiles (relief float16 RGBA, hair uint8 RGBA; row 0 = tile y 0) and their
+    physical periods."""
     relief: np.ndarray
     hair: np.ndarray
     relief_period: float = RELIEF_PERIOD
@@ -134,10 +134,7 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     speckle = 0.6 * _periodic_noise(rng, size, 60.0 / um) + 0.4 * _periodic_noise(rng, size, 180.0 / um)
     shade = -0.25 * cavity + 0.05 * speckle
     shade -= shade.mean()
-    enc = lambda s: np.clip(np.rint((s / SLOPE_RANGE * 0.5 + 0.5) * 255), 0, 255)
-    tile = np.stack([enc(gx), enc(gy), np.clip(np.rint((shade / ALBEDO_RANGE * 0.5 + 0.5) * 255), 0, 255),
-                     np.rint(np.clip(pores, 0, 1) * 255)], -1)
-    return tile.astype(np.uint8)
+    return np.stack([gx, gy, shade, np.clip(pores, 0, 1)], -1).astype(np.float16)
 
 
 def _draw_strands(canvas, rng, n, length_mm, width_um, spread_deg, curl, um, period_px):
@@ -184,8 +181,3 @@ def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
 def detail_tiles(seed: int = 0) -> DetailTiles:
     """The relief and hair tiles for ``seed`` (made once per process, ~1 s)."""
     return DetailTiles(_relief_tile(seed), _hair_tile(seed))
-
-
-def decode_slope(tile_rg: np.ndarray) -> np.ndarray:
-    """The height slope (dh/dx, dh/dy) stored in a relief tile's R, G."""
-    return (np.asarray(tile_rg, np.float32) / 255.0 - 0.5) * 2 * SLOPE_RANGE

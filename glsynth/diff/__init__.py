@@ -7,7 +7,9 @@ Everything after that is plain torch, so gradients flow from pixels to texels th
 
 - ``interpolate``: per-vertex (or per-corner) attributes -> per-pixel values
 - ``texture``: bilinear lookup of a texture at per-pixel UVs (same filter as the GL pass)
-- ``phong``: the Phong terms of ``shaders/phong.frag``
+- ``phong``: the Phong terms of ``shaders/phong.frag``; ``skin_terms``: the skin
+  reflectance of ``shaders/skin.frag`` (without its micro-detail, which is an appearance
+  layer of the GL image that blending never optimises through)
 - ``shade``: all of the above, the torch twin of the GL 'rgb' pass
 
 Shapes: H x W image, B views, V vertices, F faces. Tensors may live on CPU or CUDA;
@@ -15,13 +17,16 @@ outputs follow the texture's device and dtype.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from ..lighting import Material, PointLight, check_lights
 
-__all__ = ["interpolate", "texture", "phong", "phong_terms", "shade", "surface", "GBuffer"]
+__all__ = ["interpolate", "texture", "phong", "phong_terms", "skin_terms", "shade", "surface",
+           "GBuffer", "srgb_to_linear", "linear_to_srgb"]
 
 
 class GBuffer:
@@ -112,14 +117,66 @@ def phong_terms(position, normal, eye, lights, material):
     return light_sum, spec_sum
 
 
+def srgb_to_linear(c):
+    """The sRGB transfer curve inverted (IEC 61966-2-1), as skin.frag's to_linear."""
+    return torch.where(c >= 0.04045, ((c.clamp(min=0) + 0.055) / 1.055) ** 2.4, c / 12.92)
+
+
+def linear_to_srgb(c):
+    """The sRGB transfer curve, as skin.frag's to_srgb (c in [0, 1])."""
+    return torch.where(c >= 0.0031308, 1.055 * c.clamp(min=1e-12) ** (1 / 2.4) - 0.055, c * 12.92)
+
+
+F0_SKIN = 0.028   # Fresnel reflectance of skin at normal incidence (refractive index ~1.4)
+WRAP_RGB = (1.0, 0.6, 0.45)   # how far each channel's diffuse wraps, relative to Material.wrap
+
+
+def skin_terms(position, normal, eye, lights, material):
+    """The skin reflectance of ``shaders/skin.frag`` without micro-detail, in linear
+    light: ``colour = albedo * light + specular`` (then sRGB-encoded by the caller).
+    Diffuse: wrap lighting, wider in red than in blue; specular: GGX with Smith masking
+    and Schlick's Fresnel, each light's ``diffuse`` colour its intensity for both; the
+    oiliness is ``material.oil / 2`` (the map's value of a mesh without a SkinSurface
+    is the shader's business; without detail the shader uses the same)."""
+    dt, dev = position.dtype, position.device
+    n = F.normalize(normal, dim=-1, eps=1e-30)
+    v = F.normalize(eye[:, None, None, :] - position, dim=-1, eps=1e-20)
+    oil = 0.5 * material.oil
+    rough = material.roughness * (1 - 0.25 * oil)
+    a2 = rough ** 4
+    k = 0.5 * rough ** 2
+    nv = (n * v).sum(-1, keepdim=True).clamp(min=1e-4)
+    wrap = material.wrap * torch.tensor(WRAP_RGB, dtype=dt, device=dev)
+    light_sum = torch.zeros_like(position)
+    spec_sum = torch.zeros_like(position)
+    for light in lights:
+        lp = torch.tensor(light.position, dtype=dt, device=dev)
+        l = F.normalize(lp - position, dim=-1, eps=1e-20)
+        nl = (n * l).sum(-1, keepdim=True)
+        diffuse = ((nl + wrap) / (1 + wrap)).clamp(min=0)
+        e = torch.tensor(light.diffuse, dtype=dt, device=dev)
+        light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) + e * diffuse
+        h = F.normalize(l + v, dim=-1, eps=1e-20)
+        nh = (n * h).sum(-1, keepdim=True).clamp(min=0)
+        d = nh * nh * (a2 - 1) + 1
+        D = a2 / (math.pi * d * d)
+        G = nl / (nl * (1 - k) + k) * nv / (nv * (1 - k) + k)
+        Fr = F0_SKIN + (1 - F0_SKIN) * (1 - (v * h).sum(-1, keepdim=True)).clamp(0, 1) ** 5
+        spec = e * (math.pi * D * Fr * G / (4 * nv) * (1 + 0.4 * oil))
+        spec_sum = spec_sum + torch.where(nl > 0, spec, torch.zeros_like(spec))
+    return light_sum, spec_sum
+
+
 def shade(outs, mesh, tex, cameras, lights=None, material=None):
     """Torch twin of the GL 'rgb' pass (without supersampling).
 
     outs: a G-buffer dict (or a list of them, one per view); mesh: glsynth.Mesh;
     tex: float texture HxWx3 or 1x3xHxW in [0, 1] (may require grad); cameras: a Camera
     or a list matching ``outs``; lights: list of PointLight (default: one at each
-    camera, the paper's blending light). Returns (H, W, 3) for one view, (B, H, W, 3)
-    for a list; background pixels are 0.
+    camera, the paper's blending light); material: Phong (default) or skin (its
+    reflectance without micro-detail: compare with GL renders of
+    ``Material(model="skin", detail=False)``). Returns (H, W, 3) for one view,
+    (B, H, W, 3) for a list; background pixels are 0.
     """
     single = isinstance(outs, dict)
     cams = [cameras] if single or not isinstance(cameras, (list, tuple)) else list(cameras)
@@ -130,8 +187,18 @@ def shade(outs, mesh, tex, cameras, lights=None, material=None):
         raise ValueError(f"{len(cams)} cameras for {gbuf.face_id.shape[0]} G-buffers")
     uv, pos, nrm = surface(gbuf, mesh, device=tex.device, dtype=tex.dtype)
     texel = texture(tex, uv)[..., :3]
-    light, spec = lighting(pos, nrm, cams, lights, material)
-    img = (texel * light + spec).clamp(0, 1) * gbuf.mask[..., None].to(tex.dtype)
+    material = material or Material()
+    if material.model == "skin":
+        eye = torch.tensor(np.array([c.eye for c in cams]), device=pos.device, dtype=pos.dtype)
+        lights = check_lights(lights) if lights is not None else None
+        terms = [skin_terms(pos[i:i + 1], nrm[i:i + 1], eye[i:i + 1],
+                            lights or [PointLight(c.eye)], material) for i, c in enumerate(cams)]
+        light, spec = torch.cat([t[0] for t in terms]), torch.cat([t[1] for t in terms])
+        img = linear_to_srgb((srgb_to_linear(texel) * light + spec).clamp(0, 1))
+    else:
+        light, spec = lighting(pos, nrm, cams, lights, material)
+        img = (texel * light + spec).clamp(0, 1)
+    img = img * gbuf.mask[..., None].to(tex.dtype)
     return img[0] if single else img
 
 

@@ -38,20 +38,21 @@ _U8_TO_HALF = (np.arange(256, dtype=np.float32) / 255).astype(np.float16)
 def _half_float_texels(texture):
     """uint8 texels as float16 in [0, 1] through OpenCV's 256-entry table look-up (30x
     faster than converting and dividing; no wider temporary, so an 8192^2 texture
-    needs no float32 or index copy)."""
-    return cv2.LUT(np.ascontiguousarray(texture), _U8_TO_HALF.reshape(256, 1)).tobytes()
+    needs no float32 or index copy). The array itself is uploaded (no bytes copy)."""
+    return cv2.LUT(np.ascontiguousarray(texture), _U8_TO_HALF.reshape(256, 1))
 
 
 def _rgba(mesh) -> np.ndarray:
     """The colour texture with the skin detail weight as alpha (255 without one)."""
     tex = mesh.texture
     weight = None if mesh.skin is None else mesh.skin.weight
-    if weight is None:
-        weight = np.full(tex.shape[:2], 255, np.uint8)
-    elif np.shape(weight) != tex.shape[:2]:
+    if weight is not None and np.shape(weight) != tex.shape[:2]:
         raise ValueError(f"{mesh.name}: skin detail weight {np.shape(weight)} does not match the "
                          f"texture {tex.shape[:2]}")
-    return cv2.merge([tex[..., 0], tex[..., 1], tex[..., 2], np.asarray(weight, np.uint8)])
+    out = np.empty(tex.shape[:2] + (4,), np.uint8)
+    out[..., :3] = tex
+    out[..., 3] = 255 if weight is None else weight
+    return out
 
 
 def _label_ids(arr: np.ndarray, what: str) -> np.ndarray:
@@ -317,14 +318,15 @@ class Renderer:
             t = detail_tiles()
             out = {}
             for name, img in (("relief", t.relief), ("hair", t.hair)):
-                tex = self.ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(img).tobytes())
+                tex = self.ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(img).tobytes(),
+                                       dtype="f2" if img.dtype == np.float16 else "f1")
                 tex.build_mipmaps()
                 tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
                 tex.repeat_x = tex.repeat_y = True
                 out[name] = tex
             out["params"] = self.ctx.texture((1, 1), 4, np.asarray(DEFAULT_PARAMS, np.uint8).tobytes())
             out["tiles"] = t
-            out["pore_mean"] = float(t.relief[..., 3].mean() / 255.0)
+            out["pore_mean"] = float(t.relief[..., 3].astype(np.float64).mean())
             self._tiles = out
         return self._tiles
 
@@ -565,30 +567,26 @@ class Renderer:
 
     def _set_skin(self, prog, gpu, mesh, camera, material):
         """The skin program's material and (with detail) its textures and scales."""
-        for key, value in (("u_roughness", material.roughness), ("u_oil", material.oil),
-                           ("u_relief_amount", material.relief),
-                           ("u_pixel_angle", 1.0 / float(camera.intrinsics()[1, 1]))):
-            if key in prog:
-                prog[key].value = value
-        if "u_relief" not in prog:
-            return
-        tiles = self._detail_tiles()
-        unit = mesh.skin.unit if mesh.skin is not None else 1.0
-        (gpu.params or tiles["params"]).use(SKIN_UNITS[0])
-        tiles["relief"].use(SKIN_UNITS[1])
-        t = tiles["tiles"]
-        prog["u_relief_period"].value = t.relief_period * unit
-        prog["u_relief_size"].value = float(t.relief.shape[0])
-        prog["u_pore_mean"].value = tiles["pore_mean"]
-        if "u_hair" in prog:
+        values = {"u_roughness": material.roughness, "u_oil": material.oil,
+                  "u_relief_amount": material.relief,
+                  "u_pixel_angle": 1.0 / float(camera.intrinsics()[1, 1])}
+        if "u_relief" in prog:
+            tiles = self._detail_tiles()
+            t, unit = tiles["tiles"], mesh.skin.unit if mesh.skin is not None else 1.0
+            (gpu.params or tiles["params"]).use(SKIN_UNITS[0])
+            tiles["relief"].use(SKIN_UNITS[1])
             tiles["hair"].use(SKIN_UNITS[2])
-            prog["u_hair_period"].value = t.hair_period * unit
-            prog["u_hair_size"].value = float(t.hair.shape[0])
-            prog["u_unit"].value = unit
-            prog["u_hair_rgb"].value = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
+            values.update(u_relief_period=t.relief_period * unit, u_relief_size=float(t.relief.shape[0]),
+                          u_pore_mean=tiles["pore_mean"], u_hair_period=t.hair_period * unit,
+                          u_hair_size=float(t.hair.shape[0]), u_unit=unit)
+            if mesh.skin is not None:
+                values["u_hair_rgb"] = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
+        for key, value in values.items():
+            if key in prog:  # a uniform that cannot change the result may be compiled out
+                prog[key].value = value
 
     def _shadow_map(self, gpu, mesh, camera, light, prog):
-        """Render ``light``'s shadow map and point the Phong program ``prog`` at it."""
+        """Render ``light``'s shadow map and point the shading program ``prog`` at it."""
         target = np.asarray(camera.target)
         n = self.SHADOW_SIZE
         light_cam = Camera.look_at(light.position, target, fov_deg=100.0, width=n, height=n)

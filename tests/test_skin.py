@@ -1,0 +1,176 @@
+"""Skin shading (shaders/skin.frag): the torch twin, micro-detail that does not alias and
+stays off non-skin, no NaN from a flash at the lens, tiles that tile, hair coordinates."""
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+import glsynth as gs
+from glsynth import diff
+from glsynth.assets import detail
+from glsynth.assets.hairflow import hair_coordinates
+from glsynth.lighting import Material, PointLight
+from glsynth.mesh import SkinSurface
+from shapes import box, sphere
+
+
+def _skin_material(rng, **kw):
+    return Material(model="skin", wrap=rng.uniform(0, 0.5), roughness=rng.uniform(0.2, 0.7),
+                    oil=rng.uniform(0, 1), **kw)
+
+
+@pytest.mark.parametrize("trial", range(4))
+def test_torch_skin_reflectance_matches_gl(renderer, rng, trial):
+    mesh = (sphere if trial % 2 == 0 else box)(rng)
+    tex = (rng.random((int(rng.integers(16, 200)), int(rng.integers(16, 200)), 3)) * 255).astype(np.uint8)
+    mesh = mesh.copy_with(texture=tex)
+    d = rng.normal(size=3)
+    eye = d / np.linalg.norm(d) * rng.uniform(0.8, 3.0)
+    cam = gs.Camera.look_at(eye, rng.normal(scale=0.05, size=3), width=renderer.width,
+                            height=renderer.height, fov_deg=rng.uniform(20, 60))
+    lights = [PointLight(np.asarray(cam.eye) + rng.normal(scale=0.3, size=3), ambient=rng.uniform(0, 0.6),
+                         diffuse=rng.uniform(0.2, 1.5)) for _ in range(int(rng.integers(1, 3)))]
+    lights.append(PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(0.2, 0.6)))  # a flash
+    mat = _skin_material(rng, detail=False)
+    out = renderer.render(mesh, cam, passes=("gbuffer", "rgb"), lights=lights, material=mat)
+    img = diff.shade(out, mesh, torch.tensor(tex / 255.0, dtype=torch.float32), cam, lights, mat)
+    fg = out["face_id"] >= 0
+    assert fg.sum() > 100
+    assert np.isfinite(out["rgb"]).all()
+    err = np.abs(img.numpy() - out["rgb"])[fg]
+    assert err.max() <= 2 / 255, f"max |torch - GL| = {err.max() * 255:.2f}/255"
+
+
+def _skin_plane(rng, half=0.5, n=24, weight=None, params=(170, 200, 255, 150), tex_size=64):
+    """A flat square (normal +Z, metres) with a uniform skin texture, skin parameters and
+    hair coordinates along +x."""
+    xs = np.linspace(-half, half, n)
+    xx, yy = np.meshgrid(xs, xs)
+    v = np.stack([xx.ravel(), yy.ravel(), np.zeros(n * n)], 1)
+    idx = np.arange(n * n).reshape(n, n)
+    f = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
+                        np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    uv = (v[:, :2] + half) / (2 * half)
+    tex = np.full((tex_size, tex_size, 3), (196, 150, 128), np.uint8)
+    hair = v[f][..., :2].astype(np.float32)            # s = x, t = y
+    prm = np.zeros((16, 16, 4), np.uint8)
+    prm[:] = params
+    skin = SkinSurface(prm, weight, hair, (40, 30, 25))
+    return gs.Mesh(v, f, uvs=uv, texture=tex, name="skin-plane", skin=skin)
+
+
+def _look_down(renderer, w, x=0.0):
+    return gs.Camera.look_at((x, 0.0, w), (x, 0.0, 0.0), up=(0, 1, 0), fov_deg=30,
+                             width=renderer.width, height=renderer.height)
+
+
+def _lap_energy(img):
+    lum = img.mean(-1)
+    return np.abs(lum[1:-1, 1:-1] * 4 - lum[:-2, 1:-1] - lum[2:, 1:-1] - lum[1:-1, :-2] - lum[1:-1, 2:]).mean()
+
+
+def test_detail_does_not_alias_far_away(renderer, rng):
+    """Far views with and without the relief, pores and speckle have the same mean colour
+    (within 1/255): the tiles are mip-filtered to their mean and their albedo changes
+    average out. Hair tints a far view (as it should) but adds no pixel noise: its
+    high-frequency energy stays that of the image without detail."""
+    no_hair = _skin_plane(rng, half=10.0, params=(255, 255, 0, 150))
+    hairy = _skin_plane(rng, half=10.0, params=(255, 255, 255, 150))
+    for w in (3.0, 8.0):
+        cam = _look_down(renderer, w, x=rng.uniform(-2, 2))
+        lights = [PointLight(np.asarray(cam.eye) + [0.3 * w, 0.2 * w, 0], ambient=0.3, diffuse=0.8)]
+        imgs = []
+        for mesh, det in ((no_hair, False), (no_hair, True), (hairy, True)):
+            mat = Material(model="skin", roughness=0.45, oil=0.0, detail=det)
+            imgs.append(renderer.render(mesh, cam, passes=("rgb",), lights=lights, material=mat)["rgb"] * 255)
+        means = [im.reshape(-1, 3).mean(0) for im in imgs]
+        assert np.abs(means[0] - means[1]).max() <= 1.0, (w, means)
+        assert _lap_energy(imgs[2]) < _lap_energy(imgs[0]) + 1.0, (w, _lap_energy(imgs[2]))
+
+
+def test_detail_shows_up_close(renderer, rng):
+    """At a tenth of a millimetre per pixel the relief, pores and hair make texture
+    that a body texture cannot (the reference: the same view without detail)."""
+    mesh = _skin_plane(rng)
+    cam = _look_down(renderer, 0.04, x=rng.uniform(-0.1, 0.1))
+    lights = [PointLight(np.asarray(cam.eye) + [0.03, 0.03, 0], ambient=0.2, diffuse=0.9)]
+    grads = []
+    for det in (False, True):
+        out = renderer.render(mesh, cam, passes=("rgb",), lights=lights,
+                              material=Material(model="skin", detail=det))
+        lum = out["rgb"].mean(-1)
+        grads.append(np.abs(np.diff(lum, axis=1)).mean() / lum.mean())
+    assert grads[1] > 10 * grads[0] and grads[1] > 0.01
+
+
+def test_detail_and_hair_stay_off_non_skin(renderer, rng):
+    """Where the detail weight is 0 (non-skin: clothing, scalp hair) the image does not
+    depend on the skin parameters at all: no relief, pores or hair; where it is 255
+    they change it."""
+    weight = np.full((1024, 1024), 255, np.uint8)
+    weight[:, :512] = 0                                 # u < 0.5: non-skin (x < 0)
+    cam = _look_down(renderer, 0.05)
+    lights = [PointLight(np.asarray(cam.eye) + [0.02, 0.03, 0], ambient=0.25, diffuse=0.9)]
+    imgs = []
+    for params in ((255, 255, 255, 255), (0, 0, 0, 0)):
+        mesh = _skin_plane(rng, weight=weight, params=params, tex_size=1024)
+        out = renderer.render(mesh, cam, passes=("rgb", "gbuffer"), lights=lights,
+                              material=Material(model="skin"))
+        imgs.append(out["rgb"])
+    uv_u = out["uv"][..., 0]
+    nonskin = (uv_u < 0.5 - 2 / 1024) & (out["face_id"] >= 0)   # beyond the bilinear edge
+    skin = (uv_u > 0.5 + 2 / 1024) & (out["face_id"] >= 0)
+    assert nonskin.sum() > 1000 and skin.sum() > 1000
+    assert np.abs(imgs[0] - imgs[1])[nonskin].max() == 0
+    assert np.abs(imgs[0] - imgs[1])[skin].mean() > 2 / 255
+
+
+def test_a_flash_at_the_lens_gives_no_nan(renderer, rng):
+    """The light exactly at the eye makes v.h round above 1 (Fresnel's base below 0)."""
+    mesh = _skin_plane(rng)
+    for w in (0.03, 0.3):
+        cam = _look_down(renderer, w, x=rng.uniform(-0.2, 0.2))
+        for det in (False, True):
+            out = renderer.render(mesh, cam, passes=("rgb",), lights=[PointLight(cam.eye, ambient=0.0)],
+                                  material=Material(model="skin", oil=1.0, roughness=0.2, detail=det))
+            assert np.isfinite(out["rgb"]).all()
+            centre = out["rgb"][renderer.height // 2 - 5:renderer.height // 2 + 5,
+                                renderer.width // 2 - 5:renderer.width // 2 + 5]
+            assert centre.min() > 0.05          # lit, not black speckles
+
+
+def test_tiles_wrap_seamlessly():
+    t = detail.detail_tiles()
+    for tile in (t.relief, t.hair):
+        x = tile.astype(np.float32)
+        inner = np.abs(np.diff(x, axis=1)).mean()
+        across = np.abs(x[:, 0] - x[:, -1]).mean()       # the step from the last column to the first
+        assert across < 2 * inner + 1.0
+        inner = np.abs(np.diff(x, axis=0)).mean()
+        across = np.abs(x[0] - x[-1]).mean()
+        assert across < 2 * inner + 1.0
+    r = t.relief.astype(np.float64)
+    assert np.abs(r[..., :2].mean((0, 1))).max() < 1e-3   # no tilt on average
+    assert abs(r[..., 2].mean()) < 1e-3                    # albedo change averages to 0
+
+
+def test_hair_coordinates_follow_a_limb_isometrically():
+    cyl = trimesh.creation.cylinder(radius=0.04, height=0.3, sections=48)
+    v = np.asarray(cyl.vertices) @ np.array([[1, 0, 0], [0, 0, 1], [0, 1, 0]], float)  # axis along y
+    v = v + np.array([0.4, 1.0, 0.0])                     # off to the side of the trunk
+    labels = np.full(len(v), 13)
+    f = np.asarray(cyl.faces)
+    hc = hair_coordinates(v, f, labels)
+    side = np.abs(cyl.face_normals[:, 2]) < 0.5          # the round side, not the caps
+    e1, e2 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    h1, h2 = hc[:, 1] - hc[:, 0], hc[:, 2] - hc[:, 0]
+    ok = side & (np.abs(h1[:, 0] * h2[:, 1] - h1[:, 1] * h2[:, 0]) > 1e-12)
+    # dp/d(s, t) per face: columns of E H^-1, unit length and orthogonal on a cylinder
+    E = np.stack([e1, e2], -1)[ok]
+    H = np.stack([h1, h2], -1)[ok].astype(np.float64)
+    J = E @ np.linalg.inv(H)
+    assert np.allclose(np.linalg.norm(J[..., 0], axis=-1), 1, atol=0.03)
+    assert np.allclose(np.linalg.norm(J[..., 1], axis=-1), 1, atol=0.05)
+    assert np.abs(np.einsum("nk,nk->n", J[..., 0], J[..., 1])).max() < 0.05
+    # +s runs along the limb, away from the trunk side's... axis (here +-y): pure y
+    assert np.allclose(np.abs(J[..., 0][:, 1]), 1, atol=0.03)
