@@ -1,0 +1,164 @@
+"""A spectral model of skin colour from its chromophores, shared by healthy skin and
+skin conditions, so that a condition looks as it does on each skin type (more blood
+under a melanin-rich epidermis reads violaceous or dark brown, not pink).
+
+Two layers, 400-700 nm in 10 nm steps:
+
+* the **epidermis** (``EPIDERMIS_CM`` thick, scaled by ``epidermis``; 0 is an erosion)
+  absorbs by melanin (volume fraction ``melanin``; eumelanin's absorption
+  6.6e11 * lambda^-3.33 /cm, Jacques) over a bloodless baseline;
+* the **papillary dermis** (``PAPILLARY_CM``) scatters (reduced scattering
+  46 * (lambda / 500)^-1.42 /cm) and absorbs by blood (volume fraction ``blood``, 150 g/l
+  haemoglobin at oxygen saturation ``oxygen``), bilirubin (``bilirubin``, mmol/l) and
+  dermal melanin (``dermal_melanin``, the blue-grey of melanin deep in the skin);
+* the **reticular dermis** below scatters the same, with a little blood.
+
+Layers combine by Kubelka-Munk's formulas (thin layers over the semi-infinite
+reticular dermis), the epidermis also back-scattering a little; reflectance spectra are weighted by the CIE 1931 colour matching
+functions (Wyman, Sloan and Shirley's multi-lobe fit) under a 6500 K blackbody, white
+balanced to a perfect reflector, and encoded as sRGB. Haemoglobin's extinction follows
+Prahl's tabulation at a few anchor wavelengths, interpolated in log space.
+
+Forward: :func:`skin_rgb` (any array shape of parameters, vectorised). Inverse:
+:class:`SkinInverse` finds the melanin and blood of the model colour nearest an sRGB
+colour (in CIELAB), so a condition can be applied to any texture's skin, keeping the
+texel's own deviation from the model as a residual.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from .colour import lab_to_srgb, srgb_to_lab
+
+LAMBDA = np.arange(400.0, 701.0, 10.0)          # nm
+EPIDERMIS_CM = 0.006                            # 60 um
+EPI_SCATTER = 0.5       # the epidermis scatters half as much as the dermis per length
+SURFACE = 0.015         # diffuse share of the surface reflection
+PAPILLARY_CM = 0.02     # 200 um of papillary dermis
+RETICULAR_BLOOD = 0.005 # blood volume fraction of the reticular dermis
+HB_G_PER_L = 150.0
+HB_MOLAR_MASS = 64500.0
+
+# molar extinction (cm^-1 / M) of oxy- and deoxyhaemoglobin at anchor wavelengths (Prahl)
+_HB_ANCHORS = {
+    "lambda": [400, 414, 420, 430, 440, 450, 460, 480, 500, 520, 542, 550, 556, 560, 570, 576,
+               580, 590, 600, 620, 640, 660, 680, 700],
+    "oxy": [266232, 524280, 480360, 214120, 103292, 62816, 44480, 33209, 20932, 24202, 53236,
+            43016, 36030, 32613, 44496, 55540, 50104, 14400, 3200, 942, 442, 320, 272, 290],
+    "deoxy": [223296, 332392, 407920, 528600, 413280, 103292, 23388, 14550, 20862, 31590, 46592,
+              53412, 54628, 53788, 45072, 37020, 37020, 28324, 14677, 6509, 4243, 3227, 2278, 1794],
+}
+# bilirubin in plasma (cm^-1 / M): a broad band peaking near 460 nm
+_BILI_PEAK, _BILI_WIDTH, _BILI_MAX = 460.0, 32.0, 55000.0
+
+
+def _interp_log(x, xs, ys):
+    return np.exp(np.interp(x, xs, np.log(ys)))
+
+
+@lru_cache(maxsize=1)
+def _spectra():
+    lam = LAMBDA
+    mel = 6.6e11 * lam ** -3.33
+    base = 0.244 + 85.3 * np.exp(-(lam - 154.0) / 66.2)
+    molar_hb = HB_G_PER_L / HB_MOLAR_MASS
+    hbo2 = 2.303 * molar_hb * _interp_log(lam, _HB_ANCHORS["lambda"], _HB_ANCHORS["oxy"])
+    hb = 2.303 * molar_hb * _interp_log(lam, _HB_ANCHORS["lambda"], _HB_ANCHORS["deoxy"])
+    bili = 2.303 * 1e-3 * _BILI_MAX * np.exp(-0.5 * ((lam - _BILI_PEAK) / _BILI_WIDTH) ** 2)
+    scat = 46.0 * (lam / 500.0) ** -1.42
+    # CIE 1931 2-degree colour matching functions, Wyman-Sloan-Shirley multi-lobe fit
+    def g(mu, s1, s2):
+        return np.exp(-0.5 * ((lam - mu) / np.where(lam < mu, s1, s2)) ** 2)
+    cmf = np.stack([1.056 * g(599.8, 37.9, 31.0) + 0.362 * g(442.0, 16.0, 26.7) - 0.065 * g(501.1, 20.4, 26.2),
+                    0.821 * g(568.8, 46.9, 40.5) + 0.286 * g(530.9, 16.3, 31.1),
+                    1.217 * g(437.0, 11.8, 36.0) + 0.681 * g(459.0, 26.0, 13.8)], 1)
+    h, c, k, t = 6.62607e-34, 2.99792e8, 1.380649e-23, 6500.0
+    m = lam * 1e-9
+    illum = 1.0 / (m ** 5 * (np.exp(h * c / (m * k * t)) - 1.0))
+    weights = cmf * illum[:, None]
+    white = weights.sum(0)
+    return {"mel": mel, "base": base, "hbo2": hbo2, "hb": hb, "bili": bili, "scat": scat,
+            "weights": weights / white[1], "white": white / white[1]}
+
+
+def reflectance(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
+    """Diffuse reflectance spectra (..., 31) of skin with these chromophores (arrays
+    broadcast together; volume fractions are clipped to [0, 1])."""
+    sp = _spectra()
+    melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis = (
+        np.clip(np.asarray(x, np.float64), lo, hi)[..., None] for x, lo, hi in
+        ((melanin, 0, 1), (blood, 0, 1), (oxygen, 0, 1), (bilirubin, 0, 10),
+         (dermal_melanin, 0, 1), (epidermis, 0, 4)))
+    mu_epi = melanin * sp["mel"] + (1 - melanin) * sp["base"]
+    mu_blood = oxygen * sp["hbo2"] + (1 - oxygen) * sp["hb"]
+    # papillary dermis: the thin, vascular layer under the epidermis that inflammation
+    # fills with blood; reticular dermis below: scattering, with a little blood
+    mu_pap = (blood * mu_blood + (1 - blood) * sp["base"] + bilirubin * sp["bili"]
+              + dermal_melanin * sp["mel"])
+    mu_ret = RETICULAR_BLOOD * mu_blood + sp["base"] + bilirubin * sp["bili"]
+    ks = mu_ret / sp["scat"]
+    r_ret = 1 + ks - np.sqrt(ks * ks + 2 * ks)
+    r_pap, t_pap = _km_layer(2 * mu_pap, 2 * sp["scat"], PAPILLARY_CM)
+    r_derm = r_pap + t_pap * t_pap * r_ret / (1 - r_pap * r_ret)
+    # the epidermis: it back-scatters a little (the whitish sheen that keeps skin from
+    # looking like dye) and filters what reaches the dermis, twice
+    r_epi, t_epi = _km_layer(2 * mu_epi, 2 * EPI_SCATTER * sp["scat"], EPIDERMIS_CM * epidermis)
+    return SURFACE + r_epi + t_epi * t_epi * r_derm / (1 - r_epi * r_derm)
+
+
+def _km_layer(K, S, thickness):
+    """Kubelka-Munk reflectance and transmittance of a layer (absorption K, scattering S
+    per cm) of the given thickness over a black background."""
+    sd = S * thickness + 1e-9
+    a = (S + K) / S
+    b = np.sqrt(a * a - 1)
+    den = a * np.sinh(b * sd) + b * np.cosh(b * sd)
+    return np.sinh(b * sd) / den, b / den
+
+
+def skin_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
+    """sRGB in [0, 1] (..., 3) of skin with these chromophores."""
+    sp = _spectra()
+    r = reflectance(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis)
+    xyz = r @ sp["weights"]                                  # (..., 3), white -> sp["white"]
+    xyz = xyz * (np.array([0.95047, 1.0, 1.08883]) / sp["white"])   # adapt to D65 white
+    lab = _xyz_to_lab(xyz)
+    return lab_to_srgb(lab)
+
+
+def _xyz_to_lab(xyz):
+    white = np.array([0.95047, 1.0, 1.08883])
+    t = xyz / white
+    d = 6.0 / 29.0
+    f = np.where(t > d ** 3, np.cbrt(np.maximum(t, 0)), t / (3 * d * d) + 4.0 / 29.0)
+    return np.stack([116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], -1)
+
+
+class SkinInverse:
+    """Nearest (melanin, blood) of the model for sRGB skin colours, by a look-up over a
+    grid (melanin 0.002-0.6, blood 0.002-0.2, both log-spaced; oxygen 0.75) matched in
+    CIELAB. ``__call__`` returns (melanin, blood, residual Lab = colour - model)."""
+
+    def __init__(self, n_mel=96, n_blood=64):
+        from scipy.spatial import cKDTree
+        self.mel = np.geomspace(0.002, 0.6, n_mel)
+        self.blood = np.geomspace(0.002, 0.2, n_blood)
+        mm, bb = np.meshgrid(self.mel, self.blood, indexing="ij")
+        self.grid_mel, self.grid_blood = mm.ravel(), bb.ravel()
+        self.grid_lab = srgb_to_lab(skin_rgb(self.grid_mel, self.grid_blood))
+        self.tree = cKDTree(self.grid_lab)
+
+    def __call__(self, rgb_uint8):
+        lab = srgb_to_lab(np.asarray(rgb_uint8))
+        flat = lab.reshape(-1, 3)
+        _, idx = self.tree.query(flat)
+        shape = lab.shape[:-1]
+        residual = (flat - self.grid_lab[idx]).reshape(lab.shape)
+        return self.grid_mel[idx].reshape(shape), self.grid_blood[idx].reshape(shape), residual
+
+
+@lru_cache(maxsize=1)
+def skin_inverse() -> SkinInverse:
+    return SkinInverse()

@@ -1,0 +1,613 @@
+"""Skin conditions composed from dermatology's vocabulary, as changes to the skin they
+sit on (glsynth.assets.chromophores), not as pictures.
+
+A condition is a :class:`LesionFields`: on a square grid covering ``extent_mm``, maps of
+what the condition does to the skin: epidermal melanin (a factor), blood (a factor and
+an amount added, its oxygen saturation), dermal melanin, bilirubin, how much epidermis
+is left (0 in an erosion or ulcer), coverage by scale and crust of a given colour,
+height (mm: plaques, nodules, ulcers), gloss (moist or tense surfaces), how much of the
+skin's micro-relief shows (0 smooth, 1 normal, 2 lichenified), and the mask a
+dermatologist would draw, with one instance id per discrete lesion.
+
+:func:`apply_to_skin` turns the fields into colours on any skin: each colour is mapped
+to its nearest melanin and blood in the skin model, changed, mapped back, and keeps its
+own deviation from the model; so erythema is pink on light skin and violaceous or dark
+brown on dark skin, and the body's own mottling continues under the condition.
+
+Presets named after common conditions (``PRESETS``) sample the vocabulary:
+
+* primary morphology: macule/patch (colour only), papule/plaque (raised), nodule,
+  vesicle/bulla (tense, translucent), pustule, wheal, telangiectasia;
+* secondary changes: scale (white, silvery, greasy yellow), crust (honey,
+  haemorrhagic), erosion, ulcer with granulation and slough, lichenification, atrophy,
+  excoriation, hyperpigmentation;
+* borders (sharp, ill-defined, raised, rolled), shapes (round, oval, annular, arcuate,
+  serpiginous, targetoid, linear, reticular) and arrangements (solitary, grouped,
+  confluent, satellite, dermatomal, widespread), from millimetres to a whole region.
+
+Everything is drawn from a seeded generator: the same seed gives the same condition.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from .chromophores import skin_inverse, skin_rgb
+from .colour import lab_to_srgb
+
+FIELDS = ("melanin", "blood", "blood_add", "oxygen", "dermal_melanin", "bilirubin", "epidermis",
+          "scale", "crust", "height", "gloss", "detail")
+NEUTRAL = {"melanin": 1.0, "blood": 1.0, "blood_add": 0.0, "oxygen": 0.75, "dermal_melanin": 0.0,
+           "bilirubin": 0.0, "epidermis": 1.0, "scale": 0.0, "crust": 0.0, "height": 0.0,
+           "gloss": 0.0, "detail": 1.0}
+SCALE_COLOURS = {"white": (236, 232, 226), "silvery": (214, 218, 222), "greasy": (205, 178, 120)}
+CRUST_COLOURS = {"honey": (196, 140, 58), "haemorrhagic": (88, 28, 24), "serous": (170, 120, 70)}
+
+
+@dataclass
+class LesionFields:
+    """A condition on a size x size grid covering extent_mm x extent_mm (row 0 at the top).
+    ``f`` holds the float32 maps named in FIELDS; ``mask`` bool; ``instances`` uint16
+    (1..n, one per discrete lesion, 0 outside the mask)."""
+    f: dict
+    mask: np.ndarray
+    instances: np.ndarray
+    extent_mm: float
+    scale_rgb: tuple = SCALE_COLOURS["white"]
+    crust_rgb: tuple = CRUST_COLOURS["honey"]
+    preset: str = ""
+    params: dict = field(default_factory=dict)
+
+    @property
+    def size(self) -> int:
+        return self.mask.shape[0]
+
+    @property
+    def mm_per_px(self) -> float:
+        return self.extent_mm / self.size
+
+
+# ---- primitives ---------------------------------------------------------------------------
+def noise(rng, size, feature_px, octaves=3, persistence=0.5):
+    """Zero-mean unit-std value noise with features about ``feature_px`` wide."""
+    out = np.zeros((size, size), np.float32)
+    amp = 1.0
+    for _ in range(octaves):
+        step = max(feature_px, 1.0)
+        g = rng.standard_normal((int(size / step) + 3, int(size / step) + 3)).astype(np.float32)
+        out += amp * cv2.resize(g, (size, size), interpolation=cv2.INTER_CUBIC)
+        feature_px /= 2
+        amp *= persistence
+    return (out - out.mean()) / (out.std() + 1e-6)
+
+
+def smoothstep(e0, e1, x):
+    t = np.clip((np.asarray(x, np.float32) - e0) / (e1 - e0), 0, 1)
+    return t * t * (3 - 2 * t)
+
+
+class Canvas:
+    """Coordinates (mm, centred) of a size x size grid and a seeded generator."""
+
+    def __init__(self, rng, size, extent_mm):
+        self.rng, self.size, self.extent = rng, size, float(extent_mm)
+        c = (np.arange(size, dtype=np.float32) + 0.5) / size - 0.5
+        self.y, self.x = np.meshgrid(c * self.extent, c * self.extent, indexing="ij")
+        self.px = self.extent / size
+
+    def noise(self, feature_mm, octaves=3):
+        return noise(self.rng, self.size, feature_mm / self.px, octaves)
+
+    def shape(self, kind, radius, centre=(0.0, 0.0), aspect=1.0, angle=None, irregular=0.1,
+              warp=0.08, width=None):
+        """Signed distance (mm, > 0 inside) of a shape: round/oval (``aspect``), annular
+        or arcuate (a ring of ``width``; arcuate keeps part of it), targetoid (rings),
+        serpiginous (a winding band), linear (a band), reticular (a net)."""
+        rng = self.rng
+        angle = rng.uniform(0, np.pi) if angle is None else angle
+        dx, dy = self.x - centre[0], self.y - centre[1]
+        u = dx * np.cos(angle) + dy * np.sin(angle)
+        v = (dy * np.cos(angle) - dx * np.sin(angle)) / aspect
+        theta, r = np.arctan2(v, u), np.hypot(u, v)
+        radial = np.ones_like(r)
+        for k in range(2, 8):
+            radial += irregular * rng.normal() / k ** 0.9 * np.cos(k * theta + rng.uniform(0, 2 * np.pi))
+        r = r / np.clip(radial, 0.5, 1.7) + warp * radius * self.noise(radius / 2, 2)
+        width = width or 0.25 * radius
+        if kind in ("round", "oval"):
+            return radius - r
+        if kind in ("annular", "arcuate"):
+            sd = width / 2 - np.abs(r - radius)
+            if kind == "arcuate":
+                gap = rng.uniform(0.6, 1.6)
+                keep = np.cos(theta - rng.uniform(-np.pi, np.pi)) > np.cos(np.pi - gap / 2)
+                sd = np.where(keep, sd, np.minimum(sd, -width))
+            return sd
+        if kind == "targetoid":
+            rings = [radius * 0.25, radius * 0.65, radius]
+            sd = rings[0] - r
+            for ri in rings[1:]:
+                sd = np.maximum(sd, width / 2 - np.abs(r - ri))
+            return sd
+        if kind == "linear":
+            return width / 2 - np.abs(v * aspect) - 0.0 * u + np.minimum(0, radius * 2 - np.abs(u))
+        if kind == "serpiginous":
+            path = 0.35 * radius * np.sin(u / radius * rng.uniform(2.0, 3.5) + rng.uniform(0, 6))
+            return np.minimum(width / 2 - np.abs(v * aspect - path), radius * 1.6 - np.abs(u))
+        if kind == "reticular":
+            n = self.noise(radius * 0.35, 2)
+            net = 1 - smoothstep(0.0, 0.35, np.abs(n))
+            return np.where(r < radius, net * width - width / 2, -r + radius - width / 2)
+        raise ValueError(f"unknown shape {kind!r}")
+
+
+def arrange(canvas, kind, n, spread_mm, min_gap_mm):
+    """Centres (mm) of ``n`` lesions: grouped (a cluster), satellite (one big, small ones
+    around), dermatomal (a band), widespread (over the whole grid)."""
+    rng = canvas.rng
+    pts = []
+    for _ in range(50 * n):
+        if len(pts) == n:
+            break
+        if kind == "grouped":
+            p = rng.normal(0, spread_mm / 3, 2)
+        elif kind == "satellite":
+            a = rng.uniform(0, 2 * np.pi)
+            p = (spread_mm * rng.uniform(0.5, 1.0)) * np.array([np.cos(a), np.sin(a)]) if pts else np.zeros(2)
+        elif kind == "dermatomal":
+            t = rng.uniform(-1, 1)
+            p = np.array([t * spread_mm, 0.15 * spread_mm * np.sin(2 * t) + rng.normal(0, spread_mm * 0.08)])
+        else:  # widespread
+            p = rng.uniform(-spread_mm, spread_mm, 2)
+        if all(np.hypot(*(p - q)) >= min_gap_mm for q in pts) and np.abs(p).max() < canvas.extent / 2:
+            pts.append(p)
+    return pts
+
+
+# ---- composing a condition -------------------------------------------------------------------
+class Builder:
+    """Accumulates a condition's fields on a Canvas."""
+
+    def __init__(self, canvas: Canvas):
+        self.c = canvas
+        n = canvas.size
+        self.f = {k: np.full((n, n), v, np.float32) for k, v in NEUTRAL.items()}
+        self.mask = np.zeros((n, n), bool)
+        self.instances = np.zeros((n, n), np.uint16)
+
+    def weight(self, sd, border, kind="sharp"):
+        """Coverage 0..1 from a signed distance: sharp (a pixel or two), ill-defined
+        (fading over ``border`` mm), raised/rolled (sharp, handled by the caller)."""
+        if kind == "ill-defined":
+            return smoothstep(-border, border * 0.3, sd)
+        return smoothstep(-max(self.c.px, 0.02 * border), max(self.c.px, 0.02 * border) + 0.05 * border, sd)
+
+    def mix(self, name, w, value):
+        self.f[name] = self.f[name] * (1 - w) + value * w
+
+    def outline(self, w, threshold=0.35, instance=None):
+        """Add where ``w`` > threshold to the mask, as a new instance (or ``instance``)."""
+        m = w > threshold
+        if not m.any():
+            return 0
+        k = instance or int(self.instances.max()) + 1
+        self.instances[m & (self.instances == 0)] = k
+        self.mask |= m
+        return k
+
+    def fields(self, extent, **kw) -> LesionFields:
+        return LesionFields(self.f, self.mask, self.instances, extent, **kw)
+
+    # secondary changes
+    def erythema(self, w, amount, oxygen=0.8):
+        """Dilated papillary vessels: ``amount`` x 5% blood volume added (negative:
+        blanching, a factor on the skin's own blood)."""
+        if amount >= 0:
+            self.f["blood_add"] += w * amount * 0.05
+        else:
+            self.mix("blood", w, 1 + amount)
+        self.mix("oxygen", w, oxygen)
+
+    def scale(self, w, coverage, flake_mm, colour="white"):
+        c = self.c
+        # flakes: patches of partly translucent keratin split by fine fissures
+        flakes = smoothstep(-0.3, 0.8, c.noise(flake_mm, 3)) * smoothstep(0.02, 0.25, np.abs(c.noise(flake_mm * 0.5, 2)))
+        flakes *= 0.55 + 0.45 * smoothstep(-1, 1, c.noise(flake_mm * 0.25, 1))
+        self.f["scale"] = np.maximum(self.f["scale"], np.clip(w * coverage * flakes, 0, 0.9))
+        self.f["height"] += 0.12 * w * coverage * flakes
+        self.f["detail"] *= 1 - 0.6 * w * coverage
+        return SCALE_COLOURS[colour]
+
+    def crust(self, w, coverage, colour="honey"):
+        c = self.c
+        lumps = smoothstep(-0.3, 0.8, c.noise(c.extent * 0.05, 3))
+        a = np.clip(w * coverage * lumps, 0, 1)
+        self.f["crust"] = np.maximum(self.f["crust"], a)
+        self.f["height"] += 0.4 * a
+        self.f["gloss"] = np.maximum(self.f["gloss"], 0.3 * a)
+        return CRUST_COLOURS[colour]
+
+    def erode(self, w, depth_mm=0.1):
+        self.mix("epidermis", w, 0.0)
+        self.f["melanin"] *= 1 - 0.8 * w
+        self.f["height"] -= depth_mm * w
+        self.f["gloss"] = np.maximum(self.f["gloss"], 0.8 * w)
+        self.f["detail"] *= 1 - w
+
+
+# ---- presets ------------------------------------------------------------------------------------
+def _size(rng, lo_mm, hi_mm):
+    return float(np.exp(rng.uniform(np.log(lo_mm), np.log(hi_mm))))
+
+
+def _nevus(b, rng, R):
+    sd = b.c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.05, warp=0.03)
+    w = b.weight(sd, R * 0.15)
+    b.mix("melanin", w * (0.85 + 0.15 * b.c.noise(R / 3, 2)), rng.uniform(3.0, 6.0))
+    if rng.random() < 0.4:  # compound / intradermal: raised, a little dermal pigment
+        b.f["height"] += rng.uniform(0.3, 1.2) * smoothstep(-R * 0.1, R * 0.8, sd)
+        b.f["dermal_melanin"] += 0.01 * w
+    b.outline(w, 0.4)
+    return {}
+
+
+def _melanoma(b, rng, R):
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.6, 0.95), irregular=rng.uniform(0.15, 0.3), warp=0.15)
+    w = b.weight(sd, R * 0.3, "ill-defined" if rng.random() < 0.4 else "sharp")
+    d = c.noise(R / 2.5, 3) + 1.2 * (c.x * rng.normal() + c.y * rng.normal()) / R   # asymmetry
+    b.mix("melanin", w, 3.0 + 3.0 * smoothstep(-1.0, 1.5, d))
+    b.f["dermal_melanin"] += w * 0.04 * smoothstep(0.3, 1.8, c.noise(R / 3, 2))        # blue-grey veil
+    b.erythema(w * smoothstep(0.5, 2.0, c.noise(R / 3, 2)), 1.5)
+    b.mix("melanin", w * 0.7 * smoothstep(1.2, 2.4, c.noise(R / 3, 2)), 0.6)          # regression
+    b.f["height"] += rng.uniform(0.0, 0.8) * smoothstep(0, R, sd)
+    b.outline(w, 0.35)
+    return {"irregularity": "high"}
+
+
+def _plaque(b, rng, R, shape, scale_colour, erythema, border="sharp", scale_cov=0.8, flake=1.5):
+    c = b.c
+    sd = c.shape(shape, R, aspect=rng.uniform(0.55, 1.0), irregular=0.15, warp=0.12,
+                 width=R * rng.uniform(0.3, 0.5))
+    w = b.weight(sd, R * 0.25, border)
+    b.erythema(w * (0.8 + 0.2 * c.noise(R / 3, 2)), erythema)
+    b.f["height"] += rng.uniform(0.2, 0.6) * smoothstep(-R * 0.05, R * 0.2, sd)
+    col = b.scale(w * smoothstep(0, R * 0.3, sd + R * 0.1), scale_cov, flake, scale_colour)
+    b.f["melanin"] *= 1 + 0.5 * w      # post-inflammatory darkening shows on darker skin
+    b.outline(w, 0.3)
+    return col
+
+
+def _psoriasis(b, rng, R):
+    arrangement = rng.choice(["solitary", "grouped", "confluent"], p=[0.5, 0.3, 0.2])
+    if arrangement == "solitary":
+        col = _plaque(b, rng, R, "oval", "silvery", rng.uniform(2.5, 4.5), scale_cov=rng.uniform(0.6, 1.0))
+    else:
+        for p in arrange(b.c, "grouped", int(rng.integers(3, 9)), R * 1.2, R * 0.3):
+            col = _plaque_at(b, rng, R * rng.uniform(0.25, 0.5), p, "silvery", rng.uniform(2.5, 4.5),
+                             merge=arrangement == "confluent")
+    return {"scale": "silvery", "arrangement": str(arrangement), "scale_rgb": col}
+
+
+def _plaque_at(b, rng, r, centre, scale_colour, erythema, merge=False, border="sharp", scale_cov=0.8,
+               flake=1.2):
+    c = b.c
+    sd = c.shape("oval", r, centre=centre, aspect=rng.uniform(0.6, 1.0), irregular=0.15, warp=0.1)
+    w = b.weight(sd, r * 0.3, border)
+    b.erythema(w, erythema)
+    b.f["height"] += rng.uniform(0.2, 0.5) * smoothstep(-r * 0.05, r * 0.2, sd)
+    col = b.scale(w * smoothstep(0, r * 0.3, sd + r * 0.1), scale_cov, flake, scale_colour)
+    b.outline(w, 0.3, instance=1 if merge else None)
+    return col
+
+
+def _eczema(b, rng, R):
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.5, 1.0), irregular=0.3, warp=0.25)
+    w = b.weight(sd, R * 0.35, "ill-defined")
+    w = w * (0.7 + 0.3 * c.noise(R / 4, 2))
+    b.erythema(w, rng.uniform(1.5, 3.0))
+    # papulovesicles, excoriations, crust, fine scale, lichenified skin lines
+    pap = smoothstep(0.8, 1.6, c.noise(max(0.6, R / 25), 1)) * w
+    b.f["height"] += 0.25 * pap
+    b.erythema(pap, 3.0)
+    b.scale(w, 0.3, 0.6, "white")
+    for _ in range(int(rng.integers(2, 8))):
+        centre = rng.uniform(-R, R, 2) * 0.6
+        line = c.shape("linear", R * rng.uniform(0.1, 0.25), centre=centre, width=max(0.3, R * 0.02), aspect=1.0)
+        e = b.weight(line, 0.2) * w
+        b.erode(e, 0.05)
+        b.crust(e, 0.8, "haemorrhagic")
+    if rng.random() < 0.5:
+        b.f["detail"] *= 1 + 1.0 * w          # lichenification
+        b.f["melanin"] *= 1 + 0.6 * w
+    b.outline(w, 0.3)
+    return {"crust_rgb": CRUST_COLOURS["haemorrhagic"], "scale_rgb": SCALE_COLOURS["white"]}
+
+
+def _tinea(b, rng, R):
+    c = b.c
+    kind = "annular" if rng.random() < 0.7 else "arcuate"
+    width = R * rng.uniform(0.12, 0.25)
+    ring = c.shape(kind, R, aspect=rng.uniform(0.75, 1.0), irregular=0.12, warp=0.06, width=width)
+    disc = c.shape("round", R + width / 2, irregular=0.0, warp=0.0, angle=0.0)
+    w_ring = b.weight(ring, width * 0.8, "ill-defined")
+    w_disc = b.weight(disc, width * 0.5)
+    b.erythema(w_ring, rng.uniform(2.5, 4.0))
+    b.erythema(w_disc * 0.3, 0.6)                          # a clearer, faintly pink centre
+    b.f["height"] += 0.15 * w_ring
+    b.scale(w_ring, 0.6, 0.5, "white")
+    b.f["melanin"] *= 1 + 0.4 * w_ring
+    b.outline(np.maximum(w_ring, w_disc * 0.9), 0.5)      # the whole ring, centre included
+    return {"shape": kind}
+
+
+def _bcc(b, rng, R):
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.75, 1.0), irregular=0.08, warp=0.04)
+    w = b.weight(sd, R * 0.1)
+    b.f["height"] += rng.uniform(0.8, 2.0) * smoothstep(-R * 0.05, R * 0.5, sd)
+    rim = smoothstep(R * 0.35, 0.0, np.abs(sd - R * 0.15)) * w          # rolled, pearly border
+    b.f["height"] += 0.5 * rim
+    b.f["gloss"] = np.maximum(b.f["gloss"], 0.7 * w)
+    b.mix("melanin", w, rng.uniform(0.5, 0.9))                          # translucent, pale
+    b.erythema(w, 0.8)
+    vessels = (1 - smoothstep(0.0, 0.08, np.abs(c.noise(R / 3, 2)))) * w * (sd > R * 0.1)
+    b.erythema(vessels, 6.0, 0.85)                                      # telangiectasia
+    if rng.random() < 0.5:                                              # central ulcer
+        core = b.weight(c.shape("round", R * rng.uniform(0.25, 0.5), irregular=0.2), R * 0.1)
+        b.erode(core, 0.5)
+        b.crust(core, 0.7, "haemorrhagic")
+    b.outline(w, 0.4)
+    return {"crust_rgb": CRUST_COLOURS["haemorrhagic"]}
+
+
+def _scc(b, rng, R):
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.6, 1.0), irregular=0.25, warp=0.15)
+    w = b.weight(sd, R * 0.3, "ill-defined" if rng.random() < 0.5 else "sharp")
+    b.erythema(w, rng.uniform(2.0, 4.0))
+    b.f["height"] += rng.uniform(0.5, 2.5) * smoothstep(-R * 0.1, R * 0.6, sd)
+    b.scale(w * smoothstep(0, R * 0.5, sd), 0.9, 1.0, "white")          # keratotic
+    core = b.weight(c.shape("round", R * rng.uniform(0.3, 0.6), irregular=0.3), R * 0.2)
+    if rng.random() < 0.6:
+        b.erode(core, 0.3)
+        b.crust(core, 0.9, rng.choice(["haemorrhagic", "serous"]))
+    b.outline(w, 0.35)
+    return {}
+
+
+def _seb_keratosis(b, rng, R):
+    c = b.c
+    sd = c.shape("oval", R, aspect=rng.uniform(0.6, 0.95), irregular=0.12, warp=0.06)
+    w = b.weight(sd, R * 0.05)                                          # stuck-on: sharp
+    b.mix("melanin", w * (0.8 + 0.2 * c.noise(R / 4, 2)), rng.uniform(2.0, 5.0))
+    warts = smoothstep(-0.5, 1.0, c.noise(max(0.4, R / 10), 2))
+    b.f["height"] += w * (0.6 + 0.4 * warts) * rng.uniform(0.5, 1.2)
+    b.f["detail"] *= 1 + 1.5 * w
+    cysts = smoothstep(1.4, 2.0, c.noise(max(0.3, R / 15), 1)) * w     # horn cysts
+    b.scale(cysts, 1.0, 0.3, "white")
+    b.outline(w, 0.4)
+    return {}
+
+
+def _acne(b, rng, R):
+    c = b.c
+    for p in arrange(c, "widespread", int(rng.integers(6, 25)), R, R * 0.1):
+        r = rng.uniform(0.8, 2.5)
+        sd = c.shape("round", r, centre=p, irregular=0.05, warp=0.02)
+        w = b.weight(sd, r * 0.6, "ill-defined")
+        b.erythema(w, rng.uniform(2.0, 4.5))
+        b.f["height"] += rng.uniform(0.3, 0.9) * smoothstep(-r * 0.3, r * 0.6, sd)
+        if rng.random() < 0.4:                                          # pustule
+            head = b.weight(c.shape("round", r * 0.35, centre=p, irregular=0.0), r * 0.1)
+            b.scale(head, 1.0, 0.2, "greasy")
+            b.f["gloss"] = np.maximum(b.f["gloss"], 0.6 * head)
+        b.outline(w, 0.45)
+    return {"scale_rgb": SCALE_COLOURS["greasy"], "arrangement": "widespread"}
+
+
+def _urticaria(b, rng, R):
+    c = b.c
+    for p in arrange(c, "widespread", int(rng.integers(2, 7)), R * 0.9, R * 0.35):
+        r = R * rng.uniform(0.2, 0.45)
+        kind = rng.choice(["round", "annular", "serpiginous"], p=[0.5, 0.3, 0.2])
+        sd = c.shape(str(kind), r, centre=p, irregular=0.3, warp=0.2, width=r * 0.5)
+        flare = b.weight(sd, r * 0.4, "ill-defined")
+        wheal = b.weight(sd - r * 0.15, r * 0.1)
+        b.erythema(flare, 2.5)
+        b.erythema(wheal, -0.3)                                          # pale, oedematous centre
+        b.f["height"] += 0.5 * wheal
+        b.f["detail"] *= 1 - 0.5 * wheal
+        b.outline(flare, 0.4)
+    return {"arrangement": "widespread"}
+
+
+def _vitiligo(b, rng, R):
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.5, 1.0), irregular=0.35, warp=0.3)
+    w = b.weight(sd, R * 0.08)
+    repig = smoothstep(1.2, 1.8, c.noise(max(0.5, R / 20), 1))          # perifollicular islands
+    b.mix("melanin", w * (1 - repig), rng.uniform(0.0, 0.15))
+    b.outline(w * (1 - 0.8 * repig), 0.5)
+    return {}
+
+
+def _pityriasis_rosea(b, rng, R):
+    c = b.c
+    herald = c.shape("oval", R * 0.35, aspect=0.6, irregular=0.1, warp=0.05)
+    pts = arrange(c, "widespread", int(rng.integers(5, 14)), R, R * 0.18)
+    axis = rng.uniform(0, np.pi)                                        # along skin tension lines
+    for i, p in enumerate(pts):
+        r = R * (0.3 if i == 0 else rng.uniform(0.08, 0.16))
+        sd = herald if i == 0 else c.shape("oval", r, centre=p, aspect=0.55, angle=axis, irregular=0.1, warp=0.05)
+        w = b.weight(sd, r * 0.3)
+        b.erythema(w, rng.uniform(1.2, 2.2), 0.7)                     # salmon
+        b.f["melanin"] *= 1 + 0.5 * w
+        collar = smoothstep(r * 0.3, 0.0, np.abs(sd - r * 0.2)) * w     # collarette of scale
+        b.scale(collar, 0.7, 0.3, "white")
+        b.outline(w, 0.4)
+    return {"arrangement": "widespread"}
+
+
+def _ulcer(b, rng, R):
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.6, 1.0), irregular=0.2, warp=0.1)
+    w_peri = b.weight(sd + R * 0.25, R * 0.2, "ill-defined")
+    bed = b.weight(sd, R * 0.05)
+    b.erythema(w_peri, 1.5)
+    b.f["melanin"] *= 1 + 0.8 * w_peri * (1 - bed)                     # periwound darkening
+    b.erode(bed, rng.uniform(0.5, 2.0))
+    gran = smoothstep(-0.5, 1.0, c.noise(max(0.5, R / 12), 2))
+    b.f["blood_add"] += bed * (0.3 + 0.2 * gran)                        # beefy granulation
+    b.f["height"] += 0.2 * bed * gran
+    slough = smoothstep(0.2, 1.2, c.noise(R / 2.5, 2)) * bed
+    b.crust(slough, rng.uniform(0.4, 0.9), "serous")                    # yellow fibrin
+    if rng.random() < 0.3:
+        eschar = smoothstep(0.8, 1.8, c.noise(R / 2, 2)) * bed
+        b.crust(eschar, 1.0, "haemorrhagic")
+    b.outline(np.maximum(bed, 0.45 * w_peri), 0.4)
+    return {"crust_rgb": CRUST_COLOURS["serous"]}
+
+
+def _lupus(b, rng, R):
+    """Discoid plaques: red, scaly, atrophic and depigmented centre, darker border."""
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.6, 1.0), irregular=0.25, warp=0.15)
+    w = b.weight(sd, R * 0.2, "ill-defined")
+    centre = smoothstep(0, R * 0.6, sd)
+    b.erythema(w, rng.uniform(2.0, 3.5))
+    b.mix("melanin", w * (1 - centre), 2.0)                              # hyperpigmented rim
+    b.mix("melanin", centre, 0.3)                                        # depigmented centre
+    b.f["detail"] *= 1 - 0.7 * centre                                    # atrophy: smooth, shiny
+    b.f["gloss"] = np.maximum(b.f["gloss"], 0.4 * centre)
+    b.f["height"] -= 0.1 * centre
+    b.scale(w, 0.4, 0.8, "white")
+    b.outline(w, 0.35)
+    return {}
+
+
+def _pyogenic_granuloma(b, rng, R):
+    c = b.c
+    sd = c.shape("round", R, irregular=0.1, warp=0.05)
+    w = b.weight(sd, R * 0.08)
+    b.erode(w, 0.0)
+    b.f["blood_add"] += w * rng.uniform(0.35, 0.55)
+    b.f["height"] += rng.uniform(1.0, 3.0) * smoothstep(-R * 0.1, R * 0.7, sd)
+    b.f["gloss"] = np.maximum(b.f["gloss"], 0.9 * w)
+    collar = smoothstep(R * 0.25, 0, np.abs(sd + R * 0.05))
+    b.scale(collar, 0.6, 0.3, "white")
+    b.outline(w, 0.4)
+    return {}
+
+
+def _purpura(b, rng, R):
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.5, 1.0), irregular=0.35, warp=0.3)
+    w = b.weight(sd, R * 0.3, "ill-defined")
+    age = rng.uniform(0, 1)                                              # fresh -> fading
+    b.f["blood_add"] += w * 0.25 * (1 - 0.6 * age)
+    b.mix("oxygen", w, 0.25)
+    b.f["bilirubin"] += w * 0.3 * age
+    b.outline(w, 0.4)
+    return {"age": round(float(age), 2)}
+
+
+# preset -> (builder, size range in mm (the condition's extent), where it usually is)
+PRESETS = {
+    "nevus": (_nevus, (2.5, 9.0)),
+    "melanoma": (_melanoma, (6.0, 35.0)),
+    "psoriasis": (_psoriasis, (15.0, 120.0)),
+    "eczema": (_eczema, (20.0, 120.0)),
+    "tinea": (_tinea, (15.0, 80.0)),
+    "bcc": (_bcc, (4.0, 25.0)),
+    "scc": (_scc, (8.0, 40.0)),
+    "seborrhoeic_keratosis": (_seb_keratosis, (5.0, 30.0)),
+    "acne": (_acne, (30.0, 120.0)),
+    "urticaria": (_urticaria, (40.0, 200.0)),
+    "vitiligo": (_vitiligo, (15.0, 150.0)),
+    "pityriasis_rosea": (_pityriasis_rosea, (60.0, 220.0)),
+    "ulcer": (_ulcer, (10.0, 90.0)),
+    "lupus": (_lupus, (10.0, 60.0)),
+    "pyogenic_granuloma": (_pyogenic_granuloma, (4.0, 18.0)),
+    "purpura": (_purpura, (10.0, 90.0)),
+}
+
+
+def make_condition(preset: str, seed, size=512, extent_mm=None) -> LesionFields:
+    """One seeded condition of ``preset`` on a size x size grid; its extent is drawn from
+    the preset's range unless given (mm; the grid has a margin around it)."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown lesion preset {preset!r}; choose from {sorted(PRESETS)}")
+    rng = np.random.default_rng(np.atleast_1d(seed).tolist() + [17])
+    build, (lo, hi) = PRESETS[preset]
+    extent = float(extent_mm) if extent_mm is not None else _size(rng, lo, hi)
+    canvas = Canvas(rng, int(size), extent * 1.4)                       # margin for borders
+    b = Builder(canvas)
+    extra = build(b, rng, extent / 2) or {}
+    for k in FIELDS:
+        b.f[k] = b.f[k].astype(np.float32)
+    b.f["height"] = cv2.GaussianBlur(b.f["height"], (0, 0), max(0.6, 0.05 / canvas.px))
+    if not b.mask.any():      # a draw that left nothing outlined: the strongest change
+        strength = np.abs(b.f["blood"] - 1) + np.abs(b.f["melanin"] - 1) + b.f["scale"] + b.f["crust"]
+        b.outline(strength / max(strength.max(), 1e-6), 0.5)
+    _relabel(b)
+    return LesionFields(b.f, b.mask, b.instances, canvas.extent, preset=preset,
+                        scale_rgb=tuple(extra.pop("scale_rgb", SCALE_COLOURS["white"])),
+                        crust_rgb=tuple(extra.pop("crust_rgb", CRUST_COLOURS["honey"])),
+                        params={"extent_mm": round(extent, 2), **{k: v for k, v in extra.items()}})
+
+
+def _relabel(b):
+    """Instance ids 1..n in order of first appearance, one per connected region of each
+    outlined lesion (lesions that merged keep the first id)."""
+    out = np.zeros_like(b.instances)
+    n = 0
+    for k in np.unique(b.instances[b.instances > 0]):
+        lab, count = ndimage.label(b.instances == k)
+        for j in range(1, count + 1):
+            n += 1
+            out[lab == j] = n
+    b.instances = out
+
+
+def apply_to_skin(fields: LesionFields, skin_rgb_uint8: np.ndarray, at=None) -> np.ndarray:
+    """The condition on a skin: ``skin_rgb_uint8`` (N x 3 or H x W x 3 uint8) holds the
+    skin's colour at each sample, ``at`` the samples' grid positions (N x 2 float
+    (row, col), bilinear; default: the skin image is the grid). Returns uint8 colours of
+    the same shape. Melanin and blood come from the skin model's inverse; the residual
+    of each colour is kept, so the skin's own texture stays."""
+    rgb = np.asarray(skin_rgb_uint8)
+    shape = rgb.shape
+    flat = rgb.reshape(-1, 3)
+    if at is None:
+        vals = {k: v.reshape(-1) for k, v in fields.f.items()}
+    else:
+        rows, cols = np.asarray(at, np.float32).T
+        vals = {k: _bilinear(v, rows, cols) for k, v in fields.f.items()}
+    mel, blood, residual = skin_inverse()(flat)
+    model = skin_rgb(mel * vals["melanin"], np.clip(blood * vals["blood"] + vals["blood_add"], 0, 0.7),
+                     vals["oxygen"],
+                     vals["bilirubin"], vals["dermal_melanin"], vals["epidermis"])
+    from .colour import srgb_to_lab
+    lab = srgb_to_lab(model) + residual * np.clip(vals["epidermis"], 0.3, 1.0)[:, None]
+    out = lab_to_srgb(lab)
+    for name, colour in (("scale", fields.scale_rgb), ("crust", fields.crust_rgb)):
+        a = np.clip(vals[name], 0, 1)[:, None]
+        out = out * (1 - a) + (np.asarray(colour, np.float64) / 255.0) * a
+    return np.clip(np.rint(out * 255), 0, 255).astype(np.uint8).reshape(shape)
+
+
+def _bilinear(img, rows, cols):
+    """img (H x W float32) at float (row, col) pixel-centre positions, clamped."""
+    h, w = img.shape
+    r = np.clip(rows - 0.5, 0, h - 1)
+    c = np.clip(cols - 0.5, 0, w - 1)
+    r0, c0 = np.floor(r).astype(np.int64), np.floor(c).astype(np.int64)
+    r1, c1 = np.minimum(r0 + 1, h - 1), np.minimum(c0 + 1, w - 1)
+    fr, fc = r - r0, c - c0
+    return ((img[r0, c0] * (1 - fc) + img[r0, c1] * fc) * (1 - fr)
+            + (img[r1, c0] * (1 - fc) + img[r1, c1] * fc) * fr)
