@@ -69,6 +69,8 @@ class BlendConfig:
     pad: int = 16                     # pixels around the lesion box where the loss is computed
     perturb_deg: float = 4.0          # camera jitter per step (degrees around the surface point)
     perturb_w: float = 0.1            # relative jitter of w per step
+    threads: int = 1                  # torch threads of the deep blend (its float sums depend on
+                                      # the count: a fixed count gives the same bytes for any workers)
 
 
 @dataclass
@@ -265,6 +267,7 @@ def validate(cfg: Config, source="config"):
         need(0 <= v < 1e12, f"blend.{k}", v, "must be in [0, 1e12)")
     need(bl.features in FEATURES, "blend.features", bl.features, f"must be one of {FEATURES}")
     need(bl.pad >= 0, "blend.pad", bl.pad, "must be >= 0")
+    need(1 <= bl.threads <= 1024, "blend.threads", bl.threads, "must be in [1, 1024]")
     v = cfg.views
     need(v.per_body >= 0, "views.per_body", v.per_body, "must be >= 0")
     need(32 <= v.size <= 4096, "views.size", v.size, "must be in [32, 4096]")

@@ -139,6 +139,24 @@ def test_deep_blend_at_paper_weights_is_finite_and_reduces_the_seam(scene):
     assert (blended[outside] == scene.pasted.pasted[outside]).all()
 
 
+def test_deep_blend_does_not_depend_on_the_process_thread_count(scene):
+    """Workers get a share of the cores; torch's convolutions and sums round differently
+    on different thread counts, so the blend runs on its own fixed count (blend.threads)."""
+    ext, _ = make_extractor("filters")
+    results = []
+    previous = torch.get_num_threads()
+    try:
+        for n in (1, 2, 3):
+            torch.set_num_threads(n)
+            blender = DeepBlender(scene.r, scene.body.mesh, scene.pasted, BlendSettings(steps=3), ext)
+            losses = blender.blend(scene.placement, rng_for(5, "t"))
+            results.append((blender.Tb.numpy().tobytes(), losses))
+            assert torch.get_num_threads() == n  # restored
+    finally:
+        torch.set_num_threads(previous)
+    assert all(r == results[0] for r in results[1:])
+
+
 @pytest.mark.parametrize("scale", [1e-3, 1e3])
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
 def test_deep_blend_stays_finite_for_scaled_weights(scene, scale, dtype):

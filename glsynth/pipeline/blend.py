@@ -45,6 +45,7 @@ class BlendSettings:
     perturb_deg: float = 4.0
     perturb_w: float = 0.1
     dtype: str = "float32"
+    threads: int = 1   # torch threads while blending (see ``DeepBlender.blend``)
 
     @property
     def needs_features(self):
@@ -136,6 +137,18 @@ class DeepBlender:
         self.history = {}
 
     def blend(self, placement: Placement, rng, torch_seed=0):
+        """Optimise one lesion's texels; returns the per-step losses. Runs on ``threads``
+        torch threads, whatever the process uses otherwise: torch's CPU convolutions
+        and sums round differently for different thread counts, and a run must give
+        the same texture for any number of workers (each gets a share of the cores)."""
+        previous = torch.get_num_threads()
+        torch.set_num_threads(self.s.threads)
+        try:
+            return self._blend(placement, rng, torch_seed)
+        finally:
+            torch.set_num_threads(previous)
+
+    def _blend(self, placement: Placement, rng, torch_seed):
         s, k = self.s, placement.instance
         torch.manual_seed(torch_seed)
         tex_h, tex_w = self.pasted.instances.shape
