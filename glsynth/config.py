@@ -24,6 +24,8 @@ OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth", "normals", "uv", 
 DEFAULT_OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth")
 BLEND_METHODS = ("deep", "poisson", "paste")
 FEATURES = ("auto", "vgg16", "filters")
+OVERLAPS = ("lesion", "dilated")
+LIGHT_POSITIONS = ("near_camera", "paper")
 
 
 @dataclass
@@ -52,6 +54,9 @@ class PasteConfig:
     max_depth_change: float = 0.02   # appendix A threshold c
     dilation: int = 9                 # pixels added around the lesion mask (a_xd)
     attempts: int = 60                # locations tried per lesion before giving up
+    enlarge: bool = True              # false: a lesion never gets more view pixels than source pixels
+    overlap: str = "lesion"           # a new dilated lesion must not touch earlier lesions
+                                      # ('lesion') or their dilated regions ('dilated', the original)
 
 
 @dataclass
@@ -90,6 +95,10 @@ class ViewsConfig:
     material_specular: list = field(default_factory=lambda: [0.0, 0.05])
     shininess: list = field(default_factory=lambda: [30.0, 60.0])
     light_offset: list = field(default_factory=lambda: [0.0, 0.5])  # light distance from camera (m)
+    # near_camera: light_offset away in a random direction, views with a blocked light
+    # rejected; paper: DermSynth3D's, light_offset per axis away from the point, at the
+    # camera when blocked
+    light_position: str = "near_camera"
     attempts: int = 50
     # Richer lighting (defaults off: the paper's single light, Lambert diffuse).
     wrap: list = field(default_factory=lambda: [0.0, 0.0])       # material wrap lighting
@@ -257,6 +266,7 @@ def validate(cfg: Config, source="config"):
     need(p.max_depth_change > 0, "paste.max_depth_change", p.max_depth_change, "must be > 0")
     need(p.dilation >= 0, "paste.dilation", p.dilation, "must be >= 0")
     need(p.attempts >= 1, "paste.attempts", p.attempts, "must be >= 1")
+    need(p.overlap in OVERLAPS, "paste.overlap", p.overlap, f"must be one of {OVERLAPS}")
     bl = cfg.blend
     need(bl.method in BLEND_METHODS, "blend.method", bl.method, f"must be one of {BLEND_METHODS}")
     need(bl.steps >= 0, "blend.steps", bl.steps, "must be >= 0")
@@ -283,6 +293,8 @@ def validate(cfg: Config, source="config"):
         _range(getattr(v, k), f"views.{k}", source, 0, 10)
     _range(v.shininess, "views.shininess", source, 1e-3, 1e4)
     _range(v.light_offset, "views.light_offset", source, 0, 1e3)
+    need(v.light_position in LIGHT_POSITIONS, "views.light_position", v.light_position,
+         f"must be one of {LIGHT_POSITIONS}")
     need(v.attempts >= 1, "views.attempts", v.attempts, "must be >= 1")
     _range(v.wrap, "views.wrap", source, 0, 1)
     need(0 <= v.flash <= 1, "views.flash", v.flash, "must be in [0, 1]")

@@ -108,7 +108,7 @@ class SelectAndPaste(_Stage):
         lesions = getattr(self, "_lesions", None)  # a worker keeps it across bodies
         p = cfg.paste
         settings = PasteSettings(p.view_size, p.fov_deg, tuple(p.w), p.max_depth_change,
-                                 p.dilation, p.attempts, tuple(cfg.lesions.size))
+                                 p.dilation, p.attempts, tuple(cfg.lesions.size), p.enlarge, p.overlap)
         for body_id in tqdm(self.body_ids, desc="paste", unit="body"):
             folder = self.body_dir(body_id)
             if PastedTextures.exists(folder):

@@ -66,14 +66,22 @@ def sample_scene(body, lesion_points, rng, v, renderer, ambient_tint=None, drawn
         raise ViewRejected("zero normal")
     w = rng.uniform(*v.w)
     cam = Camera.from_surface(point, normal, w, fov_deg=v.fov_deg, width=v.size, height=v.size)
-    # light near the camera, in a random direction, unblocked on its way to the point
-    direction = rng.normal(size=3)
-    direction /= np.linalg.norm(direction)
-    light_pos = np.asarray(cam.eye) + direction * rng.uniform(*v.light_offset)
-    if np.linalg.norm(light_pos - point) < 1e-6 or not _sees_point(
-            renderer, mesh if drawn is None else drawn,
-            Camera.look_at(light_pos, point, fov_deg=5.0, width=16, height=16), point):
-        raise ViewRejected("light blocked by the body")
+    eye = np.asarray(cam.eye)
+    sees = lambda p: np.linalg.norm(p - point) >= 1e-6 and _sees_point(  # noqa: E731
+        renderer, mesh if drawn is None else drawn,
+        Camera.look_at(p, point, fov_deg=5.0, width=16, height=16), point)
+    if v.light_position == "paper":
+        # DermSynth3D's code: each axis moves the light up to light_offset[1] further on
+        # the camera's side of the point; a light the body blocks goes to the camera
+        light_pos = eye + np.sign(eye - point) * rng.uniform(*v.light_offset, size=3)
+        light_pos = light_pos if sees(light_pos) else eye
+    else:
+        # light near the camera, in a random direction, unblocked on its way to the point
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        light_pos = eye + direction * rng.uniform(*v.light_offset)
+        if not sees(light_pos):
+            raise ViewRejected("light blocked by the body")
     # One intensity per term for R, G and B alike: independent channels would tint the
     # skin green or purple, which no clinical photo shows.
     ambient = rng.uniform(*v.ambient)
