@@ -19,7 +19,7 @@ class ConfigError(ValueError):
     """A configuration file or override is invalid; the message names the key."""
 
 
-OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth", "normals", "uv", "face_id")
+OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth", "nevi", "normals", "uv", "face_id")
 # written unless ``outputs`` says otherwise; the extra 3D outputs are opt-in
 DEFAULT_OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth")
 BLEND_METHODS = ("deep", "poisson", "paste")

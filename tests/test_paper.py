@@ -51,6 +51,7 @@ def test_paper_preset_has_the_papers_settings():
             v.shininess, v.min_skin) == (512, 30.0, [0.1, 1.3], [0.2, 0.99], [0.2, 0.99], [0.0, 0.1],
                                          [0.0, 0.05], [30.0, 60.0], 0.1)
     assert v.flash == 0 and not v.shadows and v.wrap == [0.0, 0.0] and not cfg.photo.enabled
+    assert "nevi" in cfg.outputs
 
 
 @pytest.mark.parametrize("key,value", [("paste.overlap", "touching"), ("views.light_position", "sun"),

@@ -234,8 +234,13 @@ def _code_hash() -> str:
     return h.hexdigest()[:16]
 
 
+def cache_root(cache_dir=None) -> Path:
+    """Where glsynth caches what it derives from assets (bodies, scan skin tones)."""
+    return Path(cache_dir or os.environ.get("GLSYNTH_CACHE") or Path.home() / ".cache" / "glsynth")
+
+
 def _cache_path(args, cache_dir):
-    root = cache_dir or os.environ.get("GLSYNTH_CACHE") or Path.home() / ".cache" / "glsynth"
+    root = cache_root(cache_dir)
     key = json.dumps({"args": args, "glsynth": __version__, "anny": _anny_version(),
                       "code": _code_hash()}, sort_keys=True, default=str)
     digest = hashlib.sha256(key.encode()).hexdigest()[:24]

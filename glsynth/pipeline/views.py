@@ -187,6 +187,9 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
         nevi = out["nevi"].astype(np.uint16)
         np.putmask(nevi, ~body_px | lesion, 0)
         layers["nevi_boxes"] = {k: r["box"] for k, r in instance_regions(nevi).items()}
+        layers["nevi"] = nevi  # the paper's nevus target: the annotated boxes, rendered
+    elif "nevi" in outputs:
+        layers["nevi"] = np.zeros(body_px.shape, np.uint16)
     return layers
 
 
