@@ -144,8 +144,13 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     labels = {"instances": instances, "nonskin": body.nonskin}
     if nevi_map is not None:
         labels["nevi"] = nevi_map
-    # anatomy: each pixel takes its face corner's part label, drawn with the other labels
-    parts = {"anatomy": body.anatomy} if body.anatomy is not None and "anatomy" in outputs else {}
+    # anatomy, drawn with the other labels: the body's per-texel map when it has one
+    # (smooth part borders), else each pixel takes its nearest face corner's label
+    parts = {}
+    if "anatomy" in outputs and getattr(body, "anatomy_map", None) is not None:
+        labels["anatomy"] = body.anatomy_map
+    elif "anatomy" in outputs and body.anatomy is not None:
+        parts = {"anatomy": body.anatomy}
     rgb = "rgb" in outputs
     out = renderer.render(mesh_b, scene.camera, passes=("gbuffer", "labels", "rgb") if rgb else
                           ("gbuffer", "labels"), label_textures=labels, vertex_labels=parts,
@@ -175,7 +180,7 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
               "regions": instance_regions(inst), "fractions": fractions}
     if rgb:
         layers["rgba"] = out["rgba8"]  # premultiplied RGB + coverage, uint8
-    if parts:
+    if "anatomy" in out:
         layers["anatomy"] = out["anatomy"].astype(np.uint8)
     if "face_id" in outputs:
         layers["face_id"] = out["face_id"].astype(np.int32)
