@@ -671,7 +671,8 @@ class Renderer:
         """View-space depth (float32 H x W, row 0 at the top, -1 on background) from the
         z-buffer of a depth-only draw: positions only, no colour targets, so about a
         third of the G-buffer's cost, for visibility probes. Relative error about
-        ``depth / near * 2**-24`` (the G-buffer's depth is the exact interpolated z)."""
+        ``depth / near * 2**-24`` (the G-buffer's depth is exact: each pixel's ray meets
+        its face's plane, see shaders/gbuffer.frag)."""
         with self.ctx:
             gpu = self._gpu_mesh(mesh)
             near, far = gpu.clip_planes(mesh, camera)
