@@ -21,13 +21,15 @@ class ConfigError(GlsynthError, ValueError):
     """A configuration file or override is invalid; the message names the key."""
 
 
-OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth", "normals", "uv", "face_id")
+OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth", "nevi", "normals", "uv", "face_id")
 # written unless ``outputs`` says otherwise; the extra 3D outputs are opt-in
 DEFAULT_OUTPUTS = ("rgb", "semantic", "instances", "anatomy", "depth")
 BLEND_METHODS = ("deep", "poisson", "paste")
 SHADINGS = ("phong", "skin")
 FRAMINGS = ("wild", "closeup", "regional")
 FEATURES = ("auto", "vgg16", "filters")
+OVERLAPS = ("lesion", "dilated")
+LIGHT_POSITIONS = ("near_camera", "paper")
 
 
 @dataclass
@@ -58,6 +60,9 @@ class PasteConfig:
     max_depth_change: float = 0.02   # appendix A threshold c
     dilation: int = 9                 # pixels added around the lesion mask (a_xd)
     attempts: int = 60                # locations tried per lesion before giving up
+    enlarge: bool = True              # false: a lesion never gets more view pixels than source pixels
+    overlap: str = "lesion"           # a new dilated lesion must not touch earlier lesions
+                                      # ('lesion') or their dilated regions ('dilated', the original)
 
 
 @dataclass
@@ -75,6 +80,8 @@ class BlendConfig:
     pad: int = 16                     # pixels around the lesion box where the loss is computed
     perturb_deg: float = 4.0          # camera jitter per step (degrees around the surface point)
     perturb_w: float = 0.1            # relative jitter of w per step
+    threads: int = 1                  # torch threads of the deep blend (its float sums depend on
+                                      # the count: a fixed count gives the same bytes for any workers)
 
 
 @dataclass
@@ -94,6 +101,10 @@ class ViewsConfig:
     material_specular: list = field(default_factory=lambda: [0.0, 0.05])
     shininess: list = field(default_factory=lambda: [30.0, 60.0])
     light_offset: list = field(default_factory=lambda: [0.0, 0.5])  # light distance from camera (m)
+    # near_camera: light_offset away in a random direction, views with a blocked light
+    # rejected; paper: DermSynth3D's, light_offset per axis away from the point, at the
+    # camera when blocked
+    light_position: str = "near_camera"
     attempts: int = 50
     # Richer lighting (defaults off: the paper's single light, Lambert diffuse).
     wrap: list = field(default_factory=lambda: [0.0, 0.0])       # material wrap lighting
@@ -307,6 +318,7 @@ def validate(cfg: Config, source="config"):
     need(p.max_depth_change > 0, "paste.max_depth_change", p.max_depth_change, "must be > 0")
     need(p.dilation >= 0, "paste.dilation", p.dilation, "must be >= 0")
     need(p.attempts >= 1, "paste.attempts", p.attempts, "must be >= 1")
+    need(p.overlap in OVERLAPS, "paste.overlap", p.overlap, f"must be one of {OVERLAPS}")
     bl = cfg.blend
     need(bl.method in BLEND_METHODS, "blend.method", bl.method, f"must be one of {BLEND_METHODS}")
     need(bl.steps >= 0, "blend.steps", bl.steps, "must be >= 0")
@@ -317,6 +329,7 @@ def validate(cfg: Config, source="config"):
         need(0 <= v < 1e12, f"blend.{k}", v, "must be in [0, 1e12)")
     need(bl.features in FEATURES, "blend.features", bl.features, f"must be one of {FEATURES}")
     need(bl.pad >= 0, "blend.pad", bl.pad, "must be >= 0")
+    need(1 <= bl.threads <= 1024, "blend.threads", bl.threads, "must be in [1, 1024]")
     v = cfg.views
     need(v.per_body >= 0, "views.per_body", v.per_body, "must be >= 0")
     need(32 <= v.size <= 4096, "views.size", v.size, "must be in [32, 4096]")
@@ -332,6 +345,8 @@ def validate(cfg: Config, source="config"):
         _range(getattr(v, k), f"views.{k}", source, 0, 10)
     _range(v.shininess, "views.shininess", source, 1e-3, 1e4)
     _range(v.light_offset, "views.light_offset", source, 0, 1e3)
+    need(v.light_position in LIGHT_POSITIONS, "views.light_position", v.light_position,
+         f"must be one of {LIGHT_POSITIONS}")
     need(v.attempts >= 1, "views.attempts", v.attempts, "must be >= 1")
     _range(v.wrap, "views.wrap", source, 0, 1)
     need(0 <= v.flash <= 1, "views.flash", v.flash, "must be in [0, 1]")

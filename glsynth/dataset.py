@@ -10,7 +10,8 @@ from .io.images import read_image, read_rgb
 
 # DESIGN.md section 3: 16 parts -> 7 groups (+ background 0)
 ANATOMY_GROUPS = np.array([0, 1, 2, 2, 3, 4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 7, 7], np.uint8)
-TARGETS = ("semantic", "three_class", "instances", "anatomy", "anatomy_groups", "depth", "boxes")
+TARGETS = ("semantic", "three_class", "instances", "anatomy", "anatomy_groups", "depth", "boxes",
+           "nevi")
 
 
 def three_class(semantic: np.ndarray) -> np.ndarray:
@@ -27,7 +28,8 @@ class SynthDataset:
     ``targets``: any of semantic (uint8 0 bg, 1 skin, 2 lesion, 3 non-skin),
     three_class (0 lesion, 1 skin, 2 non-skin), instances (int64), anatomy (16 parts),
     anatomy_groups (7 groups + background), depth (float32, -1 off the body), boxes
-    (float32 N x 4, [x0, y0, x1, y1) ). Items are dicts of torch tensors with
+    (float32 N x 4, [x0, y0, x1, y1) ), nevi (int64 nevus ids, 0 none: the scan's
+    annotated nevus boxes as rendered; written when ``outputs`` has nevi). Items are dicts of torch tensors with
     ``image`` float32 3 x H x W in [0, 1], plus ``meta`` (the per-image JSON).
     ``transform`` (optional) gets and returns the dict.
     """
@@ -65,8 +67,8 @@ class SynthDataset:
                 item[t] = torch.from_numpy(semantic.astype(np.int64))
             elif t == "three_class":
                 item[t] = torch.from_numpy(three_class(semantic).astype(np.int64))
-            elif t == "instances":
-                item[t] = torch.from_numpy(read_image(self._path(sid, "_instances.png")).astype(np.int64))
+            elif t in ("instances", "nevi"):
+                item[t] = torch.from_numpy(read_image(self._path(sid, f"_{t}.png")).astype(np.int64))
             elif t in ("anatomy", "anatomy_groups"):
                 a = read_image(self._path(sid, "_anatomy.png"))
                 a = ANATOMY_GROUPS[a] if t == "anatomy_groups" else a

@@ -38,6 +38,7 @@ flat out mat3 g_world;
 flat out mat3 g_normal;
 flat out mat3x2 g_uv;
 flat out vec3 g_depth;
+flat out vec4 g_plane;  // the face's plane in view space: unit normal, n . p (gbuffer.frag)
 flat out int g_face;
 #ifdef HAIR_COORDS
 in vec2 in_h0;

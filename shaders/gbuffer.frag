@@ -12,6 +12,9 @@
 #endif
 #include "surface.glsl"
 
+flat in vec4 g_plane;      // see mesh.vert
+uniform vec4 u_pixel_ray;  // window pixel (x, y) -> view ray (x a + b, y c + d, -1)
+
 layout(location = 0) out int out_face;
 layout(location = 1) out float out_depth;
 #if BARY_UV
@@ -27,11 +30,24 @@ layout(location = 2) out uvec4 out_labels;
 #endif
 #endif
 
+// View depth of the surface point the pixel shows. Inside the face: where the pixel's
+// own ray meets the face's plane. Interpolating the corners' depths instead sums terms
+// as large as the corners' depths, which for a face 1e5 times larger than its distance
+// to the camera loses four digits to rounding. Outside (barycentrics clamped at a
+// silhouette, degenerate faces): the clamped point's depth, as the barycentrics say;
+// "outside" allows for the rounding of the interpolated barycentrics on an edge.
+float surface_depth(vec3 b) {
+    vec3 ray = vec3(gl_FragCoord.xy * u_pixel_ray.xz + u_pixel_ray.yw, -1.0);
+    float on_plane = g_plane.w / dot(g_plane.xyz, ray);
+    bool inside = all(greaterThanEqual(g_bary, vec3(-1e-6)));
+    return inside && on_plane > 0.0 && on_plane < 3.0e38 ? on_plane : dot(g_depth, b);
+}
+
 void main() {
     vec3 b = surface_bary();
     vec2 uv = g_uv * b;
     out_face = g_face + 1;
-    out_depth = dot(g_depth, b);
+    out_depth = surface_depth(b);
 #if BARY_UV
     out_bary = vec4(b, 0.0);
     out_uv = uv;

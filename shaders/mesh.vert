@@ -30,6 +30,11 @@ vec4 shadow_lookup(vec3 p, vec3 normal) {
 }
 #endif
 
+// The face's plane in world space: unit normal and its offset n . p, both computed in
+// double precision on the CPU, so that the plane is exact wherever the camera is.
+in vec4 in_plane;
+uniform vec3 u_eye;
+
 void main() {
     emit_face();
     gl_Position = clip_position();
@@ -37,6 +42,9 @@ void main() {
     vec4 to_depth = -vec4(u_view[0][2], u_view[1][2], u_view[2][2], u_view[3][2]);
     g_depth = vec3(dot(to_depth, vec4(in_p0, 1.0)), dot(to_depth, vec4(in_p1, 1.0)),
                    dot(to_depth, vec4(in_p2, 1.0)));
+    // the plane relative to the eye: n . (p - eye) from the exact offset, not from
+    // corners that may lie 1e5 times farther away than the face's nearest point
+    g_plane = vec4(mat3(u_view) * in_plane.xyz, in_plane.w - dot(in_plane.xyz, u_eye));
 #if SHADOWS
     // per corner: clip coordinates are linear in the surface point, so the fragment
     // stage gets its own (with the bias blended across the face) from barycentrics

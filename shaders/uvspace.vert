@@ -7,4 +7,5 @@
 void main() {
     gl_Position = vec4(emit_face() * 2.0 - 1.0, 0.0, 1.0);
     g_depth = vec3(0.0);
+    g_plane = vec4(0.0);
 }

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import glsynth as gs
-from glsynth.pipeline.blend import BlendError, BlendSettings, DeepBlender, gram
+from glsynth.pipeline.blend import BlendError, BlendSettings, DeepBlender, blend_loss, gram
 from glsynth.pipeline.poisson import poisson_blend
 from glsynth.pipeline.bodies import TexelGeometry
 from glsynth.pipeline.features import VGG16Features, make_extractor
@@ -139,6 +139,24 @@ def test_deep_blend_at_paper_weights_is_finite_and_reduces_the_seam(scene):
     assert (blended[outside] == scene.pasted.pasted[outside]).all()
 
 
+def test_deep_blend_does_not_depend_on_the_process_thread_count(scene):
+    """Workers get a share of the cores; torch's convolutions and sums round differently
+    on different thread counts, so the blend runs on its own fixed count (blend.threads)."""
+    ext, _ = make_extractor("filters")
+    results = []
+    previous = torch.get_num_threads()
+    try:
+        for n in (1, 2, 3):
+            torch.set_num_threads(n)
+            blender = DeepBlender(scene.r, scene.body.mesh, scene.pasted, BlendSettings(steps=3), ext)
+            losses = blender.blend(scene.placement, rng_for(5, "t"))
+            results.append((blender.Tb.numpy().tobytes(), losses))
+            assert torch.get_num_threads() == n  # restored
+    finally:
+        torch.set_num_threads(previous)
+    assert all(r == results[0] for r in results[1:])
+
+
 @pytest.mark.parametrize("scale", [1e-3, 1e3])
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
 def test_deep_blend_stays_finite_for_scaled_weights(scene, scale, dtype):
@@ -178,6 +196,21 @@ def test_vgg16_loads_torchvision_state_dict(tmp_path, scene):
         make_extractor("vgg16", str(bad))
     with pytest.raises(FileNotFoundError, match="vgg_weights"):
         make_extractor("vgg16", str(tmp_path / "missing.pth"))
+
+
+def test_total_variation_term_is_summed_over_the_crop():
+    """The paper's lambda_TV = 1e-4 weighs a TV *summed* over the crop (DermSynth3D's
+    code). Hand-computed: one lit pixel of 0.5 in the red channel of a 6 x 7 crop, its
+    four neighbours 0 (4 x 0.5), plus a blue column step of 0.25 across 6 rows."""
+    b = torch.zeros(1, 3, 6, 7)
+    b[0, 0, 2, 3] = 0.5
+    b[0, 2, :, 4:] = 0.25
+    m = torch.zeros(1, 1, 6, 7)
+    m[..., 1:5, 1:6] = 1
+    s = BlendSettings(content=0.0, style=0.0, gradient=0.0, tv=1e-4)
+    total, terms = blend_loss(b, b, b, b, m, s, None)
+    assert float(terms["tv"]) == pytest.approx(4 * 0.5 + 6 * 0.25)
+    assert float(total) == pytest.approx(1e-4 * 3.5)
 
 
 def test_gram_does_not_overflow_for_large_features():

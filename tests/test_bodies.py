@@ -274,3 +274,96 @@ def test_texture_layout(default_body):
     assert m.textures["nonskin"] is body.nonskin
     # padded: no black background left between UV islands
     assert (m.texture.sum(-1) == 0).mean() < 0.001
+
+
+# ---- anatomy per texel ------------------------------------------------------------------
+def _surface_samples(mesh, n=4, inset=0.04):
+    """A grid of points in every face (barycentrics (n-i-j, i, j)/n, pulled ``inset`` of
+    the way to the centroid) and the links between neighbours: inside a face, and across
+    each mesh edge between the two faces' points along it (seams included). Returns
+    (face, barycentrics, link rows, link cols)."""
+    ij = np.array([(i, j) for i in range(n + 1) for j in range(n + 1 - i)])
+    index = {tuple(p): k for k, p in enumerate(ij)}
+    local = []
+    for i, j in ij:
+        for di, dj in ((1, 0), (0, 1), (-1, 1)):
+            if (i + di, j + dj) in index:
+                local.append((index[(i, j)], index[(i + di, j + dj)]))
+    local = np.array(local)
+    k, nf = len(ij), len(mesh.faces)
+    b = np.c_[n - ij.sum(1), ij] / n
+    b = (1 - inset) * b + inset / 3
+    base = np.arange(nf)[:, None] * k
+    rows, cols = (base + local[:, 0]).ravel(), (base + local[:, 1]).ravel()
+    # points along each face edge (corner a -> corner b), keyed by the mesh edge
+    keys, nodes = [], []
+    for a, c in ((0, 1), (0, 2), (1, 2)):
+        s = np.arange(n + 1)
+        pts = [index[tuple(p)] for p in
+               (np.c_[s, 0 * s] if (a, c) == (0, 1) else np.c_[0 * s, s] if (a, c) == (0, 2)
+                else np.c_[n - s, s])]
+        va, vc = mesh.faces[:, a], mesh.faces[:, c]
+        t = np.where((va < vc)[:, None], s[None], n - s[None])
+        keys.append(np.stack([np.broadcast_to(np.minimum(va, vc)[:, None], t.shape),
+                              np.broadcast_to(np.maximum(va, vc)[:, None], t.shape), t], -1).reshape(-1, 3))
+        nodes.append((base + np.array(pts)[None]).ravel())
+    keys, nodes = np.concatenate(keys), np.concatenate(nodes)
+    order = np.lexsort(keys.T[::-1])
+    keys, nodes = keys[order], nodes[order]
+    same = (keys[1:] == keys[:-1]).all(1)
+    rows = np.r_[rows, nodes[:-1][same]]
+    cols = np.r_[cols, nodes[1:][same]]
+    return np.repeat(np.arange(nf), k), np.tile(b, (nf, 1)), rows, cols
+
+
+def test_anatomy_texture_parts_are_connected_with_straight_borders(default_body):
+    """Per-texel anatomy (what views render): on the surface, sampled through the
+    texture, every part is one connected region; the trunk's borders are horizontal
+    cuts of the average body's rest pose to within a texel, where the nearest-corner
+    rule zigzags a face wide; and the borders are shorter than that rule's."""
+    from glsynth.assets import bodies as B
+    body, _ = default_body
+    m, amap = body.mesh, body.anatomy_map
+    assert amap.dtype == np.uint8 and amap.shape == (SIZE, SIZE)
+    assert set(np.unique(amap)) == set(range(1, 17))
+    face, b, rows, cols = _surface_samples(m)
+    uv = np.einsum("nk,nkc->nc", b, m.uvs[m.face_uvs[face]])
+    r = np.clip(((1 - uv[:, 1]) * SIZE).astype(int), 0, SIZE - 1)
+    c = np.clip((uv[:, 0] * SIZE).astype(int), 0, SIZE - 1)
+    lab = amap[r, c]
+    n_comp, comp = connected_components(_components(len(m.vertices), m.faces), directed=False)
+    main = comp[m.faces[face, 0]] == np.argmax(np.bincount(comp))
+    assert (lab[~main] == 1).all()                        # eyeballs, tongue: head
+    for part in range(1, 17):
+        keep = np.flatnonzero(main & (lab == part))
+        sel = np.zeros(len(lab), bool)
+        sel[keep] = True
+        link = sel[rows] & sel[cols]
+        pos = np.full(len(lab), -1)
+        pos[keep] = np.arange(len(keep))
+        g = sp.coo_matrix((np.ones(link.sum()), (pos[rows[link]], pos[cols[link]])),
+                          shape=(len(keep), len(keep)))
+        n, _ = connected_components(g, directed=False)
+        assert n == 1, f"part {part} ({anatomy.PART_NAMES[part]}) is split into {n} pieces on the surface"
+    # trunk cuts: rest-pose heights of texels on either side of the 2|3 and 3|4 borders
+    st = B._static()
+    tface, tbary = B._raster(SIZE)
+    cov = tface >= 0
+    height = np.zeros((SIZE, SIZE))
+    height[cov] = np.einsum("nk,nk->n", tbary[cov], st["rest"][st["faces"][tface[cov]], 1])
+    corner = np.zeros_like(amap)
+    corner[cov] = st["labels"][st["faces"][tface[cov], np.argmax(tbary[cov], 1)]]
+    texel_height = np.ptp(st["rest"][:, 1]) * 2 / SIZE    # ~6 mm: UV scale varies
+    for upper, lower in ((2, 3), (3, 4)):
+        for labels, limit in ((amap, texel_height / 4), (corner, None)):
+            ok = cov & ~np.isin(tface, np.flatnonzero(~np.isin(st["labels"][st["faces"]], (2, 3, 4)).any(1)))
+            overlap = height[ok & (labels == lower)].max() - height[ok & (labels == upper)].min()
+            if limit is not None:
+                assert overlap <= limit, f"{upper}|{lower} border off its plane by {overlap * 1000:.1f} mm"
+            else:
+                assert overlap > 2 * texel_height  # the face-corner rule's zigzag (the control)
+
+    def border(labels):
+        return ((labels[:, 1:] != labels[:, :-1]) & cov[:, 1:] & cov[:, :-1]).sum() + \
+            ((labels[1:] != labels[:-1]) & cov[1:] & cov[:-1]).sum()
+    assert border(amap) < 0.85 * border(corner)

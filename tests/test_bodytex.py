@@ -50,8 +50,9 @@ def cylinder(rng):
 
 
 def label_of(v):
-    """Anatomy label as a function of position: 1 + ring (0..5) + 6 * (x > 0) -> 1..12."""
-    return 1 + np.rint(v[:, 1] / 0.3).astype(int) + 6 * (v[:, 0] > 1e-9)
+    """Anatomy label as a function of position: 1 + (5 - ring (0..5)) + 6 * (x > 0) ->
+    1..12; the head (1) on the top ring, the feet (9, 10) lower down: +Y is up."""
+    return 1 + (5 - np.rint(v[:, 1] / 0.3).astype(int)) + 6 * (v[:, 0] > 1e-9)
 
 
 def write_scan(folder, rng, labels_dtype=np.float32):
@@ -285,3 +286,106 @@ def test_ensure_uvs_leaves_textured_mesh_alone(scan):
     folder, _ = scan
     m = load_bodytex(folder).mesh
     assert ensure_uvs(m) is m
+
+
+# ---- scan folders as the paper uses them -------------------------------------------------
+def _skin_coloured(folder, rgb):
+    """Give a written scan a uniform skin colour (the non-skin patch stays random)."""
+    tex = cv2.imread(str(folder / f"{OBJ}.png"))[..., ::-1].copy()
+    nonskin = cv2.imread(str(folder / "nonskin_mask.png"), cv2.IMREAD_UNCHANGED)[..., 0] > 0
+    tex[~nonskin] = rgb
+    cv2.imwrite(str(folder / f"{OBJ}.png"), tex[..., ::-1])
+
+
+def test_scans_are_chosen_to_span_skin_tone(tmp_path, rng, monkeypatch):
+    """7 scans whose names sort opposite to their skin tone: 3 of them are the lightest,
+    the middle and the darkest (the paper's choice of 50 scans over the ITA range), not
+    the first 3 names; ITA is measured on skin texels only and cached."""
+    from glsynth.assets import ita_degrees
+    from glsynth.config import load_config
+    from glsynth.pipeline import bodies as pb
+    monkeypatch.setenv("GLSYNTH_CACHE", str(tmp_path / "cache"))
+    root = tmp_path / "scans"
+    greys = np.linspace(235, 60, 7).astype(np.uint8)       # lightest first
+    colours = [(int(g), int(g * 0.78), int(g * 0.66)) for g in greys]
+    for i, rgb in enumerate(colours):
+        folder = root / f"{90 - i:03d}-scan"                   # lightest has the last name
+        write_scan(folder, rng)
+        _skin_coloured(folder, rgb)
+    cfg = load_config(None, [f"bodies.source={root}", "bodies.count=3"])
+    ids = pb.body_ids(cfg)
+    assert ids == ["084-scan", "087-scan", "090-scan"]       # darkest, middle, lightest
+    body = load_bodytex(root / "087-scan")
+    assert body.meta["ita"] == pytest.approx(float(ita_degrees(np.array(colours[3], np.uint8))), abs=1e-9)
+    # the second call reads the cache, not the scans
+    monkeypatch.setattr("glsynth.assets.bodytex.load_bodytex", lambda f: pytest.fail("re-measured"))
+    assert pb.body_ids(cfg) == ids
+    cfg_all = load_config(None, [f"bodies.source={root}", "bodies.count=50"])
+    assert pb.body_ids(cfg_all) == sorted(os.listdir(root))
+
+
+@pytest.mark.parametrize("axis,sign", [(2, 1), (2, -1), (0, 1), (1, -1)])
+def test_scan_up_axis_is_detected_and_recorded(tmp_path, rng, axis, sign):
+    """The same scan stored with its height along +-Z, +X or -Y loads as the +Y-up
+    original (vertices equal), and meta records the axis found."""
+    folder = tmp_path / "upright"
+    ref = write_scan(folder, rng)
+    upright = load_bodytex(folder)
+    assert upright.meta["up_axis"] == "+y" and np.array_equal(upright.meta["rotation"], np.eye(3))
+    # rotate the file's vertices so that the body's up (+Y) points along sign * axis
+    target = np.zeros(3)
+    target[axis] = sign
+    other = [a for a in range(3) if a != axis][0]
+    rot = np.zeros((3, 3))
+    rot[:, 1] = target                                     # +Y -> target
+    rot[other, 0] = 1.0                                    # +X -> another axis
+    rot[:, 2] = np.cross(rot[:, 0], rot[:, 1])             # right-handed
+    lines = (folder / f"{OBJ}.obj").read_text().splitlines()
+    v = iter(ref["v"] @ rot.T)
+    out = [("v " + " ".join(f"{c:.9f}" for c in next(v))) if ln.startswith("v ") else ln for ln in lines]
+    (folder / f"{OBJ}.obj").write_text("\n".join(out) + "\n")
+    body = load_bodytex(folder)
+    assert body.meta["up_axis"] == f"{'+' if sign > 0 else '-'}{'xyz'[axis]}"
+    # up is +Y again: the head (label 1) on top; the turn about the up axis is free
+    assert np.ptp(body.mesh.vertices[:, 1]) == pytest.approx(np.ptp(ref["v"][:, 1]))
+    head, feet = body.anatomy == 1, np.isin(body.anatomy, (9, 10))
+    assert body.mesh.vertices[head, 1].mean() > body.mesh.vertices[feet, 1].mean()
+    np.testing.assert_allclose(body.mesh.vertices[:, 1], ref["v"][:, 1], atol=1e-8)
+    r = np.asarray(body.meta["rotation"])
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+
+
+def test_scan_nevi_are_a_pixel_target(tmp_path, rng):
+    """Skin3D's nevus boxes of a scan folder rendered as a target (the paper's nevus
+    mask): targets/{id}_nevi.png holds nevus ids exactly where the boxes are seen, the
+    JSON's boxes are those of the mask, and the dataset loads it."""
+    from glsynth.dataset import SynthDataset
+    root = tmp_path / "scans"
+    folder = root / "006-f-run"
+    write_scan(folder, rng)
+    # faces wound outwards (the fixture's face inwards), so that cameras sit outside
+    lines = (folder / f"{OBJ}.obj").read_text().splitlines()
+    (folder / f"{OBJ}.obj").write_text("\n".join(
+        "f " + " ".join(ln.split()[1:][::-1]) if ln.startswith("f ") else ln for ln in lines) + "\n")
+    # two large boxes (texels), so that most views see one
+    (folder / "skin3d_nevi.csv").write_text("x0,y0,x1,y1\n0,8,30,32\n34,8,64,20\n")
+    out = tmp_path / "out"
+    cfg = gs.load_config(None, [f"bodies.source={root}", "lesions.per_body=0", "views.per_body=4",
+                                "views.size=64", "views.min_skin=0.02", "views.w=[0.6, 1.2]",
+                                "backgrounds.count=2", "outputs=[rgb, semantic, nevi]", "seed=3"])
+    gs.pipeline.generate(cfg, out)
+    ds = SynthDataset(out, targets=("semantic", "nevi"))
+    assert len(ds) >= 3
+    seen = 0
+    for item in ds:
+        nevi, semantic = item["nevi"].numpy(), item["semantic"].numpy()
+        assert nevi.shape == semantic.shape and set(np.unique(nevi)) <= {0, 1, 2}
+        assert (semantic[nevi > 0] != 0).all()              # only on the body
+        boxes = {n["id"]: n["box"] for n in item["meta"]["nevi"]}
+        assert sorted(boxes) == sorted(set(np.unique(nevi)) - {0})
+        for k, (x0, y0, x1, y1) in boxes.items():
+            ys, xs = np.nonzero(nevi == k)
+            assert [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1] == [x0, y0, x1, y1]
+        seen += bool(boxes)
+    assert seen, "no view saw a nevus"

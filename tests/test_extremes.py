@@ -29,7 +29,7 @@ import torch
 import glsynth as gs
 from glsynth import diff
 from glsynth.pipeline.bodies import TexelGeometry
-from shapes import plane, skin_sheet, sphere
+from shapes import plane, ray_face_depth, skin_sheet, sphere
 
 # ---------------------------------------------------------------------------------
 # helpers
@@ -143,6 +143,31 @@ def test_grazing_views(renderer, rng, angle_deg):
     expected = t * (dirs @ fwd)
     rel = np.abs(out["depth"][rows, cols] - expected) / expected
     assert np.quantile(rel, 0.99) < 1e-3
+
+
+@pytest.mark.parametrize("ratio", [1e4, 1e5])
+@pytest.mark.parametrize("w", [0.005, 0.1, 10.0, 100.0])
+def test_depth_exact_on_faces_far_larger_than_w(renderer, rng, w, ratio):
+    """A tilted square of two faces ``ratio`` times w wide, seen from w near its middle
+    (a wall or floor a camera almost touches): its corners lie 1e4-1e5 times farther
+    than the surface under the camera. Depth against the closed form of each pixel's
+    ray meeting the plane (float64): interpolating the corners' depths lost up to 4
+    digits here (relative error 1e-3)."""
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    base = plane(rng, size=ratio * w)
+    origin = rng.normal(size=3) * 0.3
+    mesh = base.copy_with(vertices=base.vertices @ q.T + origin)
+    point = origin + q @ np.r_[rng.uniform(-0.3, 0.3, 2) * min(w, 1.0), 0.0]
+    normal = q[:, 2] + rng.normal(scale=0.3, size=3)
+    normal = normal if normal @ q[:, 2] > 0.3 else q[:, 2]
+    cam = gs.Camera.from_surface(point, normal, w, width=renderer.width, height=renderer.height,
+                                 fov_deg=rng.uniform(20, 60))
+    out, _ = _gl_vs_torch(renderer, mesh, cam, [gs.PointLight(cam.eye)])
+    rows, cols = np.nonzero(out["face_id"] >= 0)
+    assert len(rows) > 0.5 * out["face_id"].size
+    expected, _ = ray_face_depth(mesh, cam, rows, cols, out["face_id"][rows, cols])
+    rel = np.abs(out["depth"][rows, cols] - expected) / expected
+    assert rel.max() <= 1e-4, f"relative depth error p99 {np.quantile(rel, 0.99):.1e} max {rel.max():.1e}"
 
 
 @pytest.mark.parametrize("normal", [(0, 1, 0), (0, -1, 0), (1e-9, 1, 0), (0, 1, 1e-8)])

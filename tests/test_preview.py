@@ -203,8 +203,10 @@ def offscreen_labels(body, cam):
     """Independent label truth for ``cam``: G-buffer + label textures, combined here."""
     from glsynth.gl.renderer import vertex_label_image
     r = get_renderer(os.environ.get("GLSYNTH_GL_BACKEND", "egl"), W, H)
-    out = r.render(body.mesh, cam, passes=("gbuffer", "labels"),
-                   label_textures={"instances": instance_map(), "nonskin": body.nonskin})
+    maps = {"instances": instance_map(), "nonskin": body.nonskin}
+    if getattr(body, "anatomy_map", None) is not None:  # built-in bodies: per-texel anatomy
+        maps["anatomy"] = body.anatomy_map
+    out = r.render(body.mesh, cam, passes=("gbuffer", "labels"), label_textures=maps)
     fg = out["face_id"] >= 0
     lesion = fg & (out["instances"] > 0)
     nonskin = fg & (out["nonskin"] > 0) & ~lesion
@@ -212,7 +214,7 @@ def offscreen_labels(body, cam):
     semantic[nonskin], semantic[lesion] = 3, 2
     return {"face_id": out["face_id"], "depth": out["depth"], "semantic": semantic,
             "instances": np.where(lesion, out["instances"], 0), "uv": out["uv"],
-            "anatomy": vertex_label_image(out, body.mesh, body.anatomy)}
+            "anatomy": out["anatomy"] if "anatomy" in maps else vertex_label_image(out, body.mesh, body.anatomy)}
 
 
 def invert(screen, palette):

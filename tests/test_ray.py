@@ -1,6 +1,7 @@
 """The Ray executor on a small local cluster started here: the same bytes as the local
-executor, for 1 and 2 actors, and a complete, identical dataset when an actor is killed
-(ray.kill, or SIGKILL of its process) in the middle of the run."""
+executor, for 1 and 2 actors (and two local worker processes), and a complete, identical
+dataset when an actor is killed (ray.kill, or SIGKILL of its process) in the middle of
+the run. Whole folders are compared, bodies/ included."""
 import logging
 import os
 import shutil
@@ -17,7 +18,7 @@ ray = pytest.importorskip("ray")
 import glsynth as gs  # noqa: E402
 from glsynth.config import load_config  # noqa: E402
 from glsynth.pipeline import ray_executor  # noqa: E402
-from test_pipeline import SMALL, _dataset_bytes  # noqa: E402  (the reduced end-to-end config)
+from test_pipeline import SMALL, _assert_same_folders  # noqa: E402  (the reduced end-to-end config)
 
 pytestmark = pytest.mark.slow
 
@@ -46,10 +47,10 @@ def reference(tmp_path_factory):
     return out
 
 
-def _assert_same(reference, out):
-    a, b = _dataset_bytes(reference), _dataset_bytes(out)
-    assert sorted(a) == sorted(b), sorted(set(a) ^ set(b))[:10]
-    assert [k for k in a if a[k] != b[k]] == []
+def _assert_same(reference, out, resumed=False):
+    """The whole folders, bodies/ included; manifest.json without its timings and the
+    worker count and executor it records."""
+    _assert_same_folders(reference, out, resumed)
 
 
 def _our_actors():
@@ -73,6 +74,12 @@ def test_ray_matches_local_executor(ray_cluster, reference, tmp_path, workers):
     _assert_same(reference, tmp_path / "ray")
     assert ray.is_initialized(), "run_ray shut down a cluster it did not start"
     assert _no_actors_left(), "actors left behind"
+
+
+def test_local_worker_processes_match_one_worker(reference, tmp_path):
+    man = gs.pipeline.generate(small_config(), tmp_path / "two", workers=2)
+    assert man["workers"] == 2 and man["executor"] == "local"
+    _assert_same(reference, tmp_path / "two")
 
 
 def _kill_when_first_sample_appears(out, how, killed):
@@ -120,7 +127,7 @@ def test_killed_actor_is_replaced(ray_cluster, reference, tmp_path, caplog, how)
     assert killed, "no actor was killed"
     assert any("died" in r.getMessage() for r in caplog.records), "the kill went unnoticed"
     assert man["counts"]["images"] == 12
-    _assert_same(reference, out)   # nothing missing, duplicated or half-written
+    _assert_same(reference, out, resumed=True)   # nothing missing, duplicated or half-written
     assert _no_actors_left()
 
 

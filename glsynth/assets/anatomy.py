@@ -27,6 +27,15 @@ left / right side)::
     wrist.*, metacarpal*.*, finger*.*              15 / 16  hand L / R
 
 Any other bone (facial rig bones if present) belongs to the head.
+
+Rendered per texel (:func:`texel_labels`): a label per vertex, drawn as the label of each
+pixel's nearest face corner, makes part borders zigzag a face wide along the mesh's
+edges. Each texel instead weighs its face's corners by barycentric coordinate times the
+vertex's *margin* (how far its part's score stands above the next part's, or how far it
+lies from a trunk cut) and takes the label with the most weight: a border crosses each
+edge where the interpolated scores cross (a trunk cut exactly at its height) and runs
+straight across a face, and every part stays one connected region, since each corner
+keeps the part of its vertex around it.
 """
 from __future__ import annotations
 
@@ -34,6 +43,7 @@ import logging
 
 import numpy as np
 import scipy.sparse as sp
+from scipy import ndimage
 from scipy.sparse.csgraph import connected_components
 
 log = logging.getLogger(__name__)
@@ -101,6 +111,20 @@ def anatomy_labels(bone_labels, weights, indices, faces, vertices=None,
     hips), where the spine bones' weights overlap widely, become horizontal cuts at the
     heights that best agree with the weights.
     """
+    return anatomy_fields(bone_labels, weights, indices, faces, vertices, smooth)[0]
+
+
+TRUNK = (2, 3, 4)
+HEIGHT_SCALE = 0.1   # metres from a trunk cut that weigh as much as a whole skinning weight
+MIN_MARGIN = 1e-3    # a vertex outvoted by its neighbours (a merged island) still counts a little
+
+
+def anatomy_fields(bone_labels, weights, indices, faces, vertices=None,
+                   smooth: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """(labels, margins): the labels of :func:`anatomy_labels` and each vertex's margin
+    (float, >= MIN_MARGIN) for :func:`texel_labels`: its part's smoothed score minus the
+    best other part's (the trunk's three parts counting as one), and for trunk vertices
+    at most their distance to the nearest trunk cut over HEIGHT_SCALE."""
     faces = np.asarray(faces, np.int64)
     score = part_scores(bone_labels, weights, indices)
     adj = _adjacency(faces, len(score))
@@ -109,14 +133,49 @@ def anatomy_labels(bone_labels, weights, indices, faces, vertices=None,
     for _ in range(smooth):
         score = norm @ (adj @ score)
     labels = np.argmax(score[:, 1:], axis=1).astype(np.uint8) + 1
+    height_margin = None
     if vertices is not None:
-        labels = _cut_trunk(labels, np.asarray(vertices, float)[:, 1])
-    return _merge_islands(labels, faces)
+        labels, height_margin = _cut_trunk(labels, np.asarray(vertices, float)[:, 1])
+    labels = _merge_islands(labels, faces)
+    # competitors: the 13 other parts and the trunk as one
+    trunk = np.isin(labels, TRUNK)
+    cand = np.c_[score[:, 1:], score[:, list(TRUNK)].sum(1)]     # column 16: the trunk
+    cand[:, [t - 1 for t in TRUNK]] = -np.inf
+    own_col = np.where(trunk, 16, labels.astype(np.int64) - 1)
+    rows = np.arange(len(labels))
+    own = cand[rows, own_col]
+    cand[rows, own_col] = -np.inf
+    margins = own - cand.max(1)
+    if height_margin is not None:
+        margins = np.where(trunk, np.minimum(margins, height_margin), margins)
+    return labels, np.maximum(margins, MIN_MARGIN)
+
+
+def texel_labels(labels, margins, faces, face_of_texel, bary) -> np.ndarray:
+    """Per-texel labels (uint8 H x W) from per-vertex ``labels`` and ``margins``
+    (:func:`anatomy_fields`) and a UV raster (``face_of_texel``: H x W face index, -1
+    where no face covers the texel; ``bary``: H x W x 3 barycentrics). A covered texel
+    takes, among its face's corner labels, the one whose corners weigh most (barycentric
+    coordinate x margin); an uncovered one the label of the nearest covered texel, so
+    that nearest-texel look-ups at UV island borders stay on the part."""
+    covered = face_of_texel >= 0
+    corners = np.asarray(faces, np.int64)[face_of_texel[covered]]
+    lab = np.asarray(labels)[corners]                                  # N x 3
+    w = bary[covered].astype(np.float32) * np.asarray(margins, np.float32)[corners]
+    total = np.stack([(w * (lab == lab[:, [k]])).sum(1) for k in range(3)], 1)
+    out = np.zeros(face_of_texel.shape, np.uint8)
+    out[covered] = lab[np.arange(len(lab)), np.argmax(total, 1)]
+    if not covered.all():
+        _, (ri, ci) = ndimage.distance_transform_edt(~covered, return_indices=True)
+        out = out[ri, ci]
+    return out
 
 
 def _cut_trunk(labels, height):
     """Relabel trunk vertices (2, 3, 4) by height: above t23 upper torso, below t34
-    hips, the thresholds minimising disagreement with the weight-based labels."""
+    hips, the thresholds minimising disagreement with the weight-based labels. Returns
+    the labels and each vertex's distance to the nearest cut of its part, over
+    HEIGHT_SCALE (the trunk vertices' margin, see ``anatomy_fields``)."""
     out = labels.copy()
     trunk = np.isin(labels, (2, 3, 4))
     cuts = []
@@ -132,7 +191,9 @@ def _cut_trunk(labels, height):
         cuts.append(h[min(i, len(h) - 1)] if i == 0 else 0.5 * (h[i - 1] + h[min(i, len(h) - 1)]))
     t23, t34 = cuts
     out[trunk] = np.where(height[trunk] >= t23, 2, np.where(height[trunk] >= t34, 3, 4))
-    return out
+    to_cut = np.where(out == 2, height - t23, np.where(out == 3, np.minimum(t23 - height, height - t34),
+                                                      t34 - height))
+    return out, to_cut / HEIGHT_SCALE
 
 
 def _adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:

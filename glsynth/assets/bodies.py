@@ -64,15 +64,19 @@ _TO_BODY = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])
 @dataclass
 class Body:
     """A textured body. ``mesh.textures["nonskin"]`` is ``nonskin``; ``mesh.vertex_labels``
-    is ``anatomy``. ``nevi``: [x0, y0, x1, y1] texel boxes (row 0 = top, x1/y1
-    exclusive) of the painted moles. ``meta``: phenotype, pose, ita, fitzpatrick, seed,
-    clothing, look (hair, eyes...), frame."""
+    is ``anatomy`` (per vertex). ``anatomy_map``: the anatomy labels per texel (uint8,
+    texture size; built-in bodies: smooth part borders, see ``anatomy.texel_labels``),
+    which views render instead of the per-vertex labels when present. ``nevi``:
+    [x0, y0, x1, y1] texel boxes (row 0 = top, x1/y1 exclusive) of the painted moles.
+    ``meta``: phenotype, pose, ita, fitzpatrick, seed, clothing, look (hair, eyes...),
+    frame."""
 
     mesh: Mesh
     nonskin: np.ndarray
     anatomy: np.ndarray
     nevi: list
     meta: dict
+    anatomy_map: np.ndarray | None = None
 
 
 def make_body(seed=0, fitzpatrick=None, ita=None, phenotype=None, pose=None, clothing=None,
@@ -166,7 +170,8 @@ def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size) -> d
     meta = json.loads(json.dumps(meta))  # plain JSON types, as after a cache load
     return {"vertices": v, "faces": st["faces"], "uvs": st["uvs"], "face_uvs": st["face_uvs"],
             "texture": paint.texture, "nonskin": paint.nonskin, "features": paint.features,
-            "anatomy": st["labels"], "nevi": np.asarray(paint.nevi, np.int64).reshape(-1, 4),
+            "anatomy": st["labels"], "anatomy_map": _anatomy_map(texture_size),
+            "nevi": np.asarray(paint.nevi, np.int64).reshape(-1, 4),
             "skin_params": paint.params, "skin_weight": paint.weight,
             "hair_coords": hairflow.hair_coordinates(v, st["faces"], st["labels"]),
             "meta": meta}
@@ -216,16 +221,25 @@ def _static() -> dict:
     w, idx = m.vertex_bone_weights.numpy(), m.vertex_bone_indices.numpy()
     with torch.no_grad():  # the average body, rest pose: where the trunk is cut
         rest = m()["rest_vertices"][0].double().numpy() @ _TO_BODY.T
+    labels, margins = anatomy.anatomy_fields(m.bone_labels, w, idx, faces, rest)
     return {"faces": faces, "uvs": m.texture_coordinates.double().numpy(),
             "face_uvs": m.face_texture_coordinate_indices.numpy().astype(np.int64),
-            "scores": anatomy.part_scores(m.bone_labels, w, idx),
-            "labels": anatomy.anatomy_labels(m.bone_labels, w, idx, faces, rest)}
+            "scores": anatomy.part_scores(m.bone_labels, w, idx), "labels": labels,
+            "margins": margins, "rest": rest}
 
 
 @lru_cache(maxsize=2)
 def _raster(size):
     st = _static()
     return skin.uv_raster(st["uvs"], st["face_uvs"], size)
+
+
+@lru_cache(maxsize=2)
+def _anatomy_map(size):
+    """Per-texel anatomy labels (the same for every body: labels are set on the average
+    body's rest pose, and the UV layout is anny's)."""
+    st = _static()
+    return anatomy.texel_labels(st["labels"], st["margins"], st["faces"], *_raster(size))
 
 
 # ---- cache ----------------------------------------------------------------------------
@@ -245,13 +259,18 @@ def _code_hash() -> str:
     return h.hexdigest()[:16]
 
 
+def cache_root(cache_dir=None) -> Path:
+    """Where glsynth caches what it derives from assets (bodies, scan skin tones)."""
+    return Path(cache_dir or os.environ.get("GLSYNTH_CACHE") or Path.home() / ".cache" / "glsynth")
+
+
 def _cache_key(args) -> str:
     return json.dumps({"args": args, "glsynth": __version__, "anny": _anny_version(),
                        "code": _code_hash()}, sort_keys=True, default=str)
 
 
 def _cache_path(args, key, cache_dir):
-    root = cache_dir or os.environ.get("GLSYNTH_CACHE") or Path.home() / ".cache" / "glsynth"
+    root = cache_root(cache_dir)
     digest = hashlib.sha256(key.encode()).hexdigest()[:24]
     return Path(root) / "bodies" / f"body-{args['seed']}-{digest}.npz"
 
@@ -312,4 +331,4 @@ def _from_arrays(a: dict) -> Body:
                 texture=a["texture"], textures={"nonskin": a["nonskin"], "features": a["features"]},
                 vertex_labels=a["anatomy"], name=f"anny-body-{meta['seed']}", skin=skin_surface)
     return Body(mesh=mesh, nonskin=a["nonskin"], anatomy=a["anatomy"],
-                nevi=[list(map(int, b)) for b in a["nevi"]], meta=meta)
+                nevi=[list(map(int, b)) for b in a["nevi"]], meta=meta, anatomy_map=a["anatomy_map"])

@@ -23,6 +23,13 @@ exclusive; boxes are clipped to the texture.
 
 Units: 3DBodyTex "normalized" scans are in metres and are kept as they are.
 :func:`load_mesh_body` can rescale a generic mesh to a given height.
+
+Frame: glsynth's convention is +Y up. A scan's up axis is its longest extent (a standing
+body is taller than it is wide or deep), pointing from the feet to the head when anatomy
+labels tell them apart (else along the axis' positive direction); a scan stored with
+another up axis is rotated to +Y up, and ``meta["up_axis"]`` / ``meta["rotation"]``
+record what was found and applied. ``meta["ita"]`` is the median ITA of the skin
+texels (the non-skin mask excluded), as the paper measures skin tone.
 """
 from __future__ import annotations
 
@@ -37,6 +44,7 @@ import numpy as np
 from ..io.images import ImageError, read_mask, read_rgb
 from ..mesh import Mesh, MeshError
 from .bodies import Body
+from .colour import fitzpatrick_from_ita, ita_degrees
 from .uv import ensure_uvs
 
 log = logging.getLogger(__name__)
@@ -90,12 +98,16 @@ def load_bodytex(folder, nonskin=None, anatomy=None, nevi=None) -> Body:
         nevi = _find_one(folder, ("nevi", "skin3d"), (".csv",))
     boxes = [] if nevi is None else read_nevi(nevi, tex_hw)
 
-    mesh = mesh.copy_with(textures={**mesh.textures, "nonskin": nonskin_map},
-                          vertex_labels=labels)
+    up, rotation = up_axis(mesh.vertices, labels)
+    mesh = mesh.copy_with(vertices=mesh.vertices @ rotation.T,
+                          textures={**mesh.textures, "nonskin": nonskin_map}, vertex_labels=labels)
+    ita = skin_ita(mesh, nonskin_map)
     meta = {"source": "3dbodytex", "id": os.path.basename(os.path.normpath(folder)),
             "mesh_path": obj, "nonskin_path": _path_or_none(nonskin),
             "anatomy_path": _path_or_none(anatomy), "nevi_path": _path_or_none(nevi),
             "units": "metres (3DBodyTex normalized scan, not rescaled)",
+            "up_axis": up, "rotation": rotation.tolist(),
+            "ita": ita, "fitzpatrick": None if ita is None else fitzpatrick_from_ita(ita),
             "height_m": float(np.ptp(mesh.vertices[:, 1]))}
     return Body(mesh=mesh, nonskin=nonskin_map, anatomy=labels, nevi=boxes, meta=meta)
 
@@ -112,6 +124,48 @@ def scan_mesh_path(folder) -> str:
             raise BodyError(f"{folder}: no {OBJ_NAME} (and {len(objs)} other .obj files)")
         obj = os.path.join(folder, objs[0])
     return obj
+
+
+_AXES = "xyz"
+HEAD, FEET = (1,), (9, 10)
+
+
+def up_axis(vertices, labels=None) -> tuple[str, np.ndarray]:
+    """('+z', R): a body's up axis, the longest extent of its vertices, signed from the
+    feet to the head when ``labels`` (1..16 per vertex) hold both, else positive; and
+    the rotation R (3x3, det 1) that takes it to +Y (the identity for '+y')."""
+    v = np.asarray(vertices, np.float64)
+    axis = int(np.argmax(np.ptp(v, axis=0)))
+    sign = 1.0
+    if labels is not None:
+        head, feet = np.isin(labels, HEAD), np.isin(labels, FEET)
+        if head.any() and feet.any() and v[head, axis].mean() < v[feet, axis].mean():
+            sign = -1.0
+    up = np.zeros(3)
+    up[axis] = sign
+    # the rotation by the shortest arc from `up` to +Y (a half turn about X for -Y)
+    y = np.array([0.0, 1.0, 0.0])
+    if np.allclose(up, -y):
+        rotation = np.diag([1.0, -1.0, -1.0])
+    else:
+        k = np.cross(up, y)
+        kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        rotation = np.eye(3) + kx + kx @ kx / (1.0 + up @ y)
+    return f"{'+' if sign > 0 else '-'}{_AXES[axis]}", np.rint(rotation)
+
+
+def skin_ita(mesh: Mesh, nonskin) -> float | None:
+    """Median ITA (degrees) of the texture at the mesh's UV vertices that lie on skin
+    (every texel the surface uses, the unused texture space and the non-skin mask left
+    out); None when no UV vertex is on skin."""
+    h, w = mesh.texture.shape[:2]
+    uv = mesh.uvs[np.unique(mesh.face_uvs)]
+    col = np.clip((uv[:, 0] * w).astype(np.int64), 0, w - 1)
+    row = np.clip(((1.0 - uv[:, 1]) * h).astype(np.int64), 0, h - 1)
+    skin = np.asarray(nonskin)[row, col] == 0
+    if not skin.any():
+        return None
+    return float(np.median(ita_degrees(mesh.texture[row[skin], col[skin]])))
 
 
 def load_mesh_body(path, nonskin=None, anatomy=None, scale_to_height=None,

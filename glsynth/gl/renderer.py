@@ -80,7 +80,7 @@ class _MeshOnGPU:
     FACES_PER_CHUNK = 256
 
     _LAYOUT = {**{f"in_p{k}": "3f" for k in range(3)}, **{f"in_n{k}": "3f" for k in range(3)},
-               **{f"in_uv{k}": "2f" for k in range(3)}}
+               **{f"in_uv{k}": "2f" for k in range(3)}, "in_plane": "4f"}
 
     @staticmethod
     def staged(mesh: Mesh) -> dict:
@@ -90,8 +90,12 @@ class _MeshOnGPU:
         n = len(mesh.faces)
         uv = (mesh.uvs[mesh.face_uvs] if mesh.uvs is not None else np.zeros((n, 3, 2)))
         corners = mesh.vertices[mesh.faces]
+        # each face's plane (unit normal, offset), in float64 before rounding: the
+        # G-buffer's depth is where a pixel's ray meets it (shaders/gbuffer.frag)
+        normals = mesh.face_normals
+        offsets = np.einsum("fk,fk->f", normals, corners.mean(1))
         face = np.concatenate([corners.reshape(n, 9), mesh.vertex_normals[mesh.faces].reshape(n, 9),
-                               uv.reshape(n, 6)], axis=1).astype(np.float32)
+                               uv.reshape(n, 6), normals, offsets[:, None]], axis=1).astype(np.float32)
         _ = mesh.bounds, mesh.closed_orientation, mesh._face_longest_edge  # for clip planes
         # Half floats: llvmpipe filters 8-bit textures with 8-bit weights (up to ~2/255
         # off the torch path); float textures are filtered in float. Alpha carries the
@@ -540,7 +544,13 @@ class Renderer:
         view, proj = camera.view_matrix(), camera.projection_matrix(near, far)
         m = proj @ view  # world -> clip; a side plane is w +- x >= 0 or w +- y >= 0
         planes = np.stack([m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1]])
+        # the view ray of GL window pixel (x, y) (pixel centres at +0.5, row 0 at the
+        # bottom): ((x - cx) / f, (y - (h - cy)) / f, -1), as Camera.pixel_rays
+        k = camera.intrinsics()
+        f = k[0, 0]
+        ray = np.array([1 / f, -k[0, 2] / f, 1 / f, (k[1, 2] - camera.height) / f])
         return {"u_view": view.T.astype("f4").tobytes(), "u_proj": proj.T.astype("f4").tobytes(),
+                "u_eye": np.asarray(camera.eye, "f4").tobytes(), "u_pixel_ray": ray.astype("f4").tobytes(),
                 "viewproj": m, "frustum": planes}
 
     SHADOW_SIZE = 1024
@@ -734,7 +744,7 @@ class Renderer:
         through it."""
         prog = self.programs[prog_name]
         for k, v in mats.items():
-            if k.startswith("u_"):
+            if k.startswith("u_") and k in prog:  # not every program reads every uniform
                 prog[k].write(v)
         fbo.use()
         fbo.viewport = (0, 0, *fbo.size)
@@ -760,7 +770,8 @@ class Renderer:
         """View-space depth (float32 H x W, row 0 at the top, -1 on background) from the
         z-buffer of a depth-only draw: positions only, no colour targets, so about a
         third of the G-buffer's cost, for visibility probes. Relative error about
-        ``depth / near * 2**-24`` (the G-buffer's depth is the exact interpolated z)."""
+        ``depth / near * 2**-24`` (the G-buffer's depth is exact: each pixel's ray meets
+        its face's plane, see shaders/gbuffer.frag)."""
         with self.ctx:
             gpu = self._gpu_mesh(mesh)
             near, far = gpu.clip_planes(mesh, camera)

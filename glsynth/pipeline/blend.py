@@ -46,6 +46,7 @@ class BlendSettings:
     perturb_deg: float = 4.0
     perturb_w: float = 0.1
     dtype: str = "float32"
+    threads: int = 1   # torch threads while blending (see ``DeepBlender.blend``)
 
     @property
     def needs_features(self):
@@ -70,7 +71,11 @@ def gram(f):
 
 
 def total_variation(x):
-    return (x[..., 1:, :] - x[..., :-1, :]).abs().mean() + (x[..., :, 1:] - x[..., :, :-1]).abs().mean()
+    """Anisotropic total variation of (B, C, H, W), *summed* over the crop (every
+    channel and pixel pair), as DermSynth3D's code defines it: lambda_TV = 1e-4 is
+    calibrated for a sum over a ~100-200 px crop, so a mean made the term ~1e5 times
+    weaker than the paper's."""
+    return (x[..., 1:, :] - x[..., :-1, :]).abs().sum() + (x[..., :, 1:] - x[..., :, :-1]).abs().sum()
 
 
 def blend_loss(b, v_T, v_Tp, v_Td, m, s: BlendSettings, extractor):
@@ -95,7 +100,9 @@ def blend_loss(b, v_T, v_Tp, v_Td, m, s: BlendSettings, extractor):
         target = m * laplacian(v_Td) + (1 - m) * laplacian(v_T)
         terms["gradient"] = 0.5 * F.mse_loss(laplacian(b), target)
     if s.tv > 0:
-        terms["tv"] = total_variation(b * m)
+        # over the composite crop, as the original: the lesion's own variation and its
+        # step to the surrounding skin (the skin outside the mask is fixed)
+        terms["tv"] = total_variation(b)
     weights = {"content": s.content, "style": s.style, "gradient": s.gradient, "tv": s.tv}
     total = sum(weights[k] * v for k, v in terms.items()) if terms else b.sum() * 0
     return total, terms
@@ -131,6 +138,18 @@ class DeepBlender:
         self.history = {}
 
     def blend(self, placement: Placement, rng, torch_seed=0):
+        """Optimise one lesion's texels; returns the per-step losses. Runs on ``threads``
+        torch threads, whatever the process uses otherwise: torch's CPU convolutions
+        and sums round differently for different thread counts, and a run must give
+        the same texture for any number of workers (each gets a share of the cores)."""
+        previous = torch.get_num_threads()
+        torch.set_num_threads(self.s.threads)
+        try:
+            return self._blend(placement, rng, torch_seed)
+        finally:
+            torch.set_num_threads(previous)
+
+    def _blend(self, placement: Placement, rng, torch_seed):
         s, k = self.s, placement.instance
         torch.manual_seed(torch_seed)
         tex_h, tex_w = self.pasted.instances.shape

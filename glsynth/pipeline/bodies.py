@@ -2,7 +2,10 @@
 texel geometry (which surface point each texel shows) that pasting needs."""
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
+import math
 import os
 from dataclasses import dataclass
 
@@ -15,10 +18,53 @@ log = logging.getLogger(__name__)
 
 
 def body_ids(cfg: Config) -> list[str]:
+    """Built-in body names, or the scan folders to use: all of them, or when there are
+    more than ``bodies.count``, that many spread evenly over skin tone."""
     if cfg.bodies.source == "builtin":
         return [f"body{i:03d}" for i in range(cfg.bodies.count)]
     folders = scan_folders(cfg.bodies.source)
-    return [os.path.basename(f) for f in folders][: cfg.bodies.count]
+    if cfg.bodies.count >= len(folders):
+        return [os.path.basename(f) for f in folders]
+    return spread_over_skin_tone(folders, cfg.bodies.count)
+
+
+def spread_over_skin_tone(folders, count: int) -> list[str]:
+    """``count`` scan ids (sorted) at evenly spaced ranks of skin tone, lightest and
+    darkest included: the paper chose its 50 of 3DBodyTex's scans "to cover a wider
+    range of skin tones", measured as ITA over the skin (``scan_ita``). Scans without
+    skin texels rank after the others."""
+    itas = [scan_ita(f) for f in folders]
+    ranked = sorted(zip((math.inf if v is None else v for v in itas), map(os.path.basename, folders)))
+    n = len(ranked)
+    ranks = np.rint(np.linspace(0, n - 1, count) if count > 1 else [(n - 1) / 2]).astype(int)
+    chosen = sorted(ranked[i][1] for i in ranks)
+    log.info("bodies: %d of %d scans, spread over ITA %s", count, n,
+             ", ".join(f"{name} {v:.0f}" for v, name in sorted(ranked[i] for i in ranks)))
+    return chosen
+
+
+def scan_ita(folder) -> float | None:
+    """Median skin ITA of a scan folder (``meta["ita"]`` of its body), cached on disk
+    (``glsynth.assets.bodies.cache_root``) by the files' names, sizes and times."""
+    from ..assets.bodies import cache_root
+    from ..assets.bodytex import load_bodytex
+    from ..io.images import write_text
+    files = [os.path.join(folder, n) for n in sorted(os.listdir(folder))]
+    stat = [(os.path.basename(f), os.stat(f).st_size, os.stat(f).st_mtime_ns) for f in files
+            if os.path.isfile(f)]
+    key = hashlib.sha256(json.dumps(["median skin ITA 1", os.path.abspath(folder), stat]).encode())
+    key = key.hexdigest()[:24]
+    path = cache_root() / "scan-ita" / f"{key}.json"
+    if path.is_file():
+        with open(path) as fh:
+            return json.load(fh)["ita"]
+    ita = load_bodytex(folder).meta["ita"]
+    try:
+        os.makedirs(path.parent, exist_ok=True)
+        write_text(str(path), json.dumps({"folder": os.path.abspath(folder), "ita": ita}))
+    except OSError as exc:
+        log.warning("could not cache the skin tone of %s at %s: %s", folder, path, exc)
+    return ita
 
 
 def scan_folders(root) -> list[str]:

@@ -98,16 +98,18 @@ class PasteSettings:
     dilation: int = 9
     attempts: int = 60
     size: tuple = (0.15, 0.4)      # lesion mask extent / view width
+    enlarge: bool = True           # False: never more view pixels than source pixels
+    overlap: str = "lesion"        # what a new dilated lesion must avoid: "lesion" | "dilated"
 
 
-def compose_lesion(lesion, view_size, extent_px, flip_h, flip_v, angle_deg):
+def compose_lesion(lesion, view_size, extent_px, flip_h, flip_v, angle_deg, max_scale=None):
     """Affine (2x3) from lesion pixels to view pixels placing the mask's box centre at
-    the view centre with its longer side ``extent_px`` long, plus the composed view
-    image a_x (float RGB) and mask a_s (float)."""
+    the view centre with its longer side ``extent_px`` long (at most ``max_scale`` view
+    pixels per lesion pixel when given), and that scale."""
     ys, xs = np.nonzero(lesion.mask)
     cy, cx = (ys.min() + ys.max()) / 2, (xs.min() + xs.max()) / 2
     extent = max(ys.max() - ys.min() + 1, xs.max() - xs.min() + 1)
-    scale = extent_px / extent
+    scale = extent_px / extent if max_scale is None else min(extent_px / extent, max_scale)
     a = cv2.getRotationMatrix2D((float(cx), float(cy)), float(angle_deg), float(scale))
     flip = np.diag([-1.0 if flip_h else 1.0, -1.0 if flip_v else 1.0])
     a[:, :2] = flip @ a[:, :2]
@@ -153,6 +155,11 @@ class Paster:
         self.T = mesh.texture
         self.result = PastedTextures(self.T, self.T.copy(), np.zeros(self.T.shape[:2], np.uint16),
                                      self.T.copy())
+        if settings.overlap not in ("lesion", "dilated"):
+            raise ValueError(f"overlap must be 'lesion' or 'dilated', got {settings.overlap!r}")
+        # with overlap "dilated" (DermSynth3D's code): the lesion ids over each lesion's
+        # dilated region (T_d's mask), which a new dilated region must not touch
+        self.dilated_ids = np.zeros_like(self.result.instances) if settings.overlap == "dilated" else None
 
     def place(self, lesion, rng) -> Placement | None:
         """Try up to ``attempts`` places; paste and return the placement, or None."""
@@ -174,16 +181,19 @@ class Paster:
             flip_h, flip_v = bool(rng.random() < 0.5), bool(rng.random() < 0.5)
             angle = float(rng.uniform(0, 360))
             extent = rng.uniform(*s.size) * s.view_size
-            affine, scale = compose_lesion(lesion, s.view_size, extent, flip_h, flip_v, angle)
+            # enlarge False: as the original, which shrinks lesions to fit but never
+            # enlarges them, a lesion keeps at least its source's resolution
+            affine, scale = compose_lesion(lesion, s.view_size, extent, flip_h, flip_v, angle,
+                                           max_scale=None if s.enlarge else 1.0)
             a_x, a_s = warp_lesion(lesion, affine, s.view_size)
             mask = a_s > 0.5
             if mask.sum() < 3:
                 reasons["lesion too small"] = reasons.get("lesion too small", 0) + 1
                 continue
             dilated = cv2.dilate(mask.astype(np.uint8), kernel) > 0
+            used = self.result.instances if self.dilated_ids is None else self.dilated_ids
             out = self.r.render(mesh, cam, passes=("gbuffer", "labels"),
-                                label_textures={"nonskin": self.nonskin,
-                                                "instances": self.result.instances})
+                                label_textures={"nonskin": self.nonskin, "instances": used})
             c = depth_change(out, out["nonskin"], out["instances"], dilated, w)
             if dilated[0].any() or dilated[-1].any() or dilated[:, 0].any() or dilated[:, -1].any():
                 c = math.inf  # lesion does not fit in the view: its edge would be unchecked
@@ -192,6 +202,9 @@ class Paster:
                 reasons[key] = reasons.get(key, 0) + 1
                 continue
             n = self._paste(cam, out, affine, lesion, mask, dilated, k)
+            if n is None:
+                reasons["dilated overlap"] = reasons.get("dilated overlap", 0) + 1
+                continue
             if n == 0:
                 reasons["no texel visible"] = reasons.get("no texel visible", 0) + 1
                 continue
@@ -208,8 +221,9 @@ class Paster:
                     s.attempts, ", ".join(f"{v}x {k_}" for k_, v in reasons.items()))
         return None
 
-    def _paste(self, cam, out, affine, lesion, mask, dilated, k) -> int:
-        """Pull lesion pixels into texels seen by this view; returns texels written."""
+    def _paste(self, cam, out, affine, lesion, mask, dilated, k) -> int | None:
+        """Pull lesion pixels into texels seen by this view; returns texels written, or
+        None when (overlap "dilated") the dilated texels touch an earlier lesion's."""
         tx, res = self.tx, self.result
         eye = np.asarray(cam.eye)
         target = np.asarray(cam.target)
@@ -236,16 +250,22 @@ class Paster:
         in_dilated = visible & (d_val > 0.5)
         if not in_lesion.any():
             return 0
+        r, c = tx.rows[near], tx.cols[near]
+        if self.dilated_ids is not None and self.dilated_ids[r[in_dilated], c[in_dilated]].any():
+            return None  # tested texel by texel, as the original (the view misses some)
         # lesion colours straight from the source image through the inverse affine
         inv = cv2.invertAffineTransform(affine)
         src = np.c_[px - 0.5, np.ones(len(px))] @ inv.T
         colours = sample_bilinear(lesion.image, src[:, 0], src[:, 1], cv2.BORDER_REPLICATE)
-        r, c = tx.rows[near], tx.cols[near]
         res.pasted[r[in_lesion], c[in_lesion]] = colours[in_lesion]
         res.instances[r[in_lesion], c[in_lesion]] = k
         res.dilated[r[in_dilated], c[in_dilated]] = colours[in_dilated]
-        _spill_into_gutters(res, tx.covered, k)
+        box = _spill_into_gutters(res, tx.covered, k)
         self.r.invalidate(res.instances)  # changed in place: re-upload before the next check
+        if self.dilated_ids is not None:
+            self.dilated_ids[r[in_dilated], c[in_dilated]] = k
+            self.dilated_ids[box][res.instances[box] == k] = k  # and the gutters spilled into
+            self.r.invalidate(self.dilated_ids)
         return int(in_lesion.sum())
 
 
@@ -263,7 +283,8 @@ def sample_bilinear(img, x, y, border=cv2.BORDER_CONSTANT):
 
 def _spill_into_gutters(res: PastedTextures, covered, k, rings=2):
     """Copy lesion texels a few texels into uncovered gutter texels next to them, so
-    bilinear sampling at UV island borders does not mix in the old skin colour."""
+    bilinear sampling at UV island borders does not mix in the old skin colour.
+    Returns the texel window (slices) that holds lesion k."""
     region = res.instances == k
     rows, cols = np.nonzero(region)
     y0, y1 = max(rows.min() - rings - 1, 0), rows.max() + rings + 2
@@ -284,6 +305,7 @@ def _spill_into_gutters(res: PastedTextures, covered, k, rings=2):
             sub[ring] = np.clip(np.round(fill), 0, 255).astype(np.uint8)
         res.instances[y0:y1, x0:x1][ring] = k
         reg |= ring
+    return np.s_[y0:y1, x0:x1]
 
 
 def _jsonable(meta):

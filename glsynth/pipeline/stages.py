@@ -97,7 +97,7 @@ class SelectAndPaste(_Stage):
         lesions = self._lesions  # a worker keeps it across bodies
         p = cfg.paste
         settings = PasteSettings(p.view_size, p.fov_deg, tuple(p.w), p.max_depth_change,
-                                 p.dilation, p.attempts, tuple(cfg.lesions.size))
+                                 p.dilation, p.attempts, tuple(cfg.lesions.size), p.enlarge, p.overlap)
         for body_id in tqdm(self.body_ids, desc="paste", unit="body"):
             folder = self.body_dir(body_id)
             if PastedTextures.exists(folder):
@@ -150,7 +150,8 @@ class BlendLesions(_Stage):
             else:
                 from .blend import BlendSettings, DeepBlender  # torch: imported only to blend deep
                 settings = BlendSettings(b.method, b.steps, b.lr, b.optimizer, b.content, b.style,
-                                         b.gradient, b.tv, b.pad, b.perturb_deg, b.perturb_w)
+                                         b.gradient, b.tv, b.pad, b.perturb_deg, b.perturb_w,
+                                         threads=b.threads)
                 if settings.needs_features and extractor is None:
                     from .features import make_extractor
                     extractor, self.feature_description = make_extractor(b.features, b.vgg_weights)
@@ -160,14 +161,13 @@ class BlendLesions(_Stage):
                     losses = blender.blend(p, rng_for(cfg.seed, "blend", body_id, p.instance),
                                            torch_seed(cfg.seed, "blend", body_id, p.instance))
                     record["lesions"][p.instance] = {
-                        "seconds": round(blender.history[p.instance]["seconds"], 3),
                         "first": losses[0] if losses else None, "last": losses[-1] if losses else None}
                 blended = blender.result()
                 record["features"] = self.feature_description
             write_png(os.path.join(folder, "blended.png"), blended)
-            record["seconds"] = time.perf_counter() - t0
+            # no timings here: every file but manifest.json is the same on every run
             write_text(os.path.join(folder, "blend.json"), json.dumps(record, indent=1, sort_keys=True))
-            self._time("blend", record["seconds"])
+            self._time("blend", time.perf_counter() - t0)
 
 
 class Generate2DViews(_Stage):
@@ -479,7 +479,7 @@ class _Worker:
             for k, t in stage.timings.items():
                 timings[k] = timings.get(k, 0.0) + t
             stage.timings = {}
-        return {"timings": timings, "features": getattr(self.blend, "feature_description", "none"),
+        return {"timings": timings,
                 "gl": self.views.renderer.info}
 
 
@@ -587,7 +587,7 @@ def _generate(cfg, out, resume, workers, executor, address):
         for k, n in r.get("rejected", {}).items():
             rejected[k] = rejected.get(k, 0) + n
     timings["total"] = time.perf_counter() - t_start
-    features = sorted({r["features"] for r in reports if r["features"] != "none"}) or ["none"]
+    features = _blend_features(out, ids)
     gl = reports[-1]["gl"] if reports else {}
     manifest = {"glsynth_version": __version__, "seed": cfg.seed, "config": cfg.to_dict(),
                 "workers": workers, "executor": executor, "gl_renderer": gl.get("GL_RENDERER"),
@@ -597,6 +597,18 @@ def _generate(cfg, out, resume, workers, executor, address):
                 "rejected_views": rejected}
     finalize(out, manifest)
     return manifest
+
+
+def _blend_features(out, ids) -> list:
+    """The feature extractors the bodies' deep blends used, from their blend.json: the
+    same for a resumed run, which blends nothing itself."""
+    found = set()
+    for body_id in ids:
+        path = os.path.join(out, "bodies", body_id, "blend.json")
+        if os.path.isfile(path):
+            with open(path) as fh:
+                found.add(json.load(fh).get("features", "none"))
+    return sorted(found - {"none"}) or ["none"]
 
 
 def _remove_partial_writes(out):

@@ -160,17 +160,25 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
         cam = Camera(cam.eye, cam.target, cam.up, cam.fov_deg, cam.width, cam.height, None, None,
                      {**cam.surface, "normal": (np.asarray(normal) / np.linalg.norm(normal)).tolist(),
                       "view_direction": cam.surface["normal"]})
-    # light near the camera, in a random direction, unblocked on its way to the point
-    direction = rng.normal(size=3)
-    direction /= np.linalg.norm(direction)
-    offset = rng.uniform(*v.light_offset)
-    if framing == "closeup":
-        offset = min(offset, 2 * w)  # a lamp or window beside the photographer, not metres off
-    light_pos = np.asarray(cam.eye) + direction * offset
-    if np.linalg.norm(light_pos - point) < 1e-6 or not _sees_point(
-            renderer, mesh if drawn is None else drawn,
-            Camera.look_at(light_pos, point, fov_deg=5.0, width=16, height=16), point):
-        raise ViewRejected("light blocked by the body")
+    eye = np.asarray(cam.eye)
+    sees = lambda p: np.linalg.norm(p - point) >= 1e-6 and _sees_point(  # noqa: E731
+        renderer, mesh if drawn is None else drawn,
+        Camera.look_at(p, point, fov_deg=5.0, width=16, height=16), point)
+    if v.light_position == "paper":
+        # DermSynth3D's code: each axis moves the light up to light_offset[1] further on
+        # the camera's side of the point; a light the body blocks goes to the camera
+        light_pos = eye + np.sign(eye - point) * rng.uniform(*v.light_offset, size=3)
+        light_pos = light_pos if sees(light_pos) else eye
+    else:
+        # light near the camera, in a random direction, unblocked on its way to the point
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        offset = rng.uniform(*v.light_offset)
+        if framing == "closeup":
+            offset = min(offset, 2 * w)  # a lamp or window beside the photographer, not metres off
+        light_pos = eye + direction * offset
+        if not sees(light_pos):
+            raise ViewRejected("light blocked by the body")
     # One intensity per term for R, G and B alike: independent channels would tint the
     # skin green or purple, which no clinical photo shows.
     ambient = rng.uniform(*v.ambient)
@@ -240,8 +248,13 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     labels = {"instances": instances, "nonskin": body.nonskin}
     if nevi_map is not None:
         labels["nevi"] = nevi_map
-    # anatomy: each pixel takes its face corner's part label, drawn with the other labels
-    parts = {"anatomy": body.anatomy} if body.anatomy is not None and "anatomy" in outputs else {}
+    # anatomy, drawn with the other labels: the body's per-texel map when it has one
+    # (smooth part borders), else each pixel takes its nearest face corner's label
+    parts = {}
+    if "anatomy" in outputs and getattr(body, "anatomy_map", None) is not None:
+        labels["anatomy"] = body.anatomy_map
+    elif "anatomy" in outputs and body.anatomy is not None:
+        parts = {"anatomy": body.anatomy}
     rgb = "rgb" in outputs
     out = renderer.render(mesh_b, scene.camera, passes=("gbuffer", "labels", "rgb") if rgb else
                           ("gbuffer", "labels"), label_textures=labels, vertex_labels=parts,
@@ -271,7 +284,7 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
               "regions": instance_regions(inst), "fractions": fractions}
     if rgb:
         layers["rgba"] = out["rgba8"]  # premultiplied RGB + coverage, uint8
-    if parts:
+    if "anatomy" in out:
         layers["anatomy"] = out["anatomy"].astype(np.uint8)
     if "face_id" in outputs:
         layers["face_id"] = out["face_id"].astype(np.int32)
@@ -283,6 +296,9 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
         nevi = out["nevi"].astype(np.uint16)
         np.putmask(nevi, ~body_px | lesion, 0)
         layers["nevi_boxes"] = {k: r["box"] for k, r in instance_regions(nevi).items()}
+        layers["nevi"] = nevi  # the paper's nevus target: the annotated boxes, rendered
+    elif "nevi" in outputs:
+        layers["nevi"] = np.zeros(body_px.shape, np.uint16)
     return layers
 
 

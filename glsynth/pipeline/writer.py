@@ -29,6 +29,8 @@ def write_sample(out_dir, sample_id, layers: dict, meta: dict, outputs):
         write_png(os.path.join(tgt, f"{sample_id}_anatomy.png"), layers["anatomy"])
     if "depth" in outputs:
         write_depth(os.path.join(tgt, f"{sample_id}_depth.tiff"), layers["depth"])
+    if "nevi" in outputs:        # uint16 nevus ids (0 none; boxes in the JSON's "nevi")
+        write_png(os.path.join(tgt, f"{sample_id}_nevi.png"), layers["nevi"])
     # extra 3D outputs, as .npy (np.load reads them; no precision lost to PNG scaling)
     if "normals" in outputs:     # float16 H x W x 3, unit camera-space normals, 0 off the body
         write_npy(os.path.join(tgt, f"{sample_id}_normals.npy"), layers["normals"].astype(np.float16))

@@ -1,0 +1,135 @@
+"""configs/paper.yaml reproduces DermSynth3D where glsynth's defaults depart from it:
+views not biased towards lesions, the original's light placement, deep blending at the
+paper's weights, lesions never drawn above their source's resolution, and lesions kept
+apart dilated region against dilated region."""
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+import glsynth as gs
+from glsynth.config import ConfigError, ViewsConfig, load_config
+from glsynth.pipeline import views as V
+from glsynth.pipeline.bodies import TexelGeometry
+from glsynth.pipeline.paste import PasteSettings, Paster, paste_lesions
+from glsynth.pipeline.seeding import rng_for
+from glsynth.resources import config_dir
+from shapes import plane, skin_sheet
+
+
+def _blob(h=40, w=48, colour=(100, 60, 45)):
+    yy, xx = np.mgrid[:h, :w]
+    mask = np.hypot((yy - h / 2) / (h / 3), (xx - w / 2) / (w / 3)) < 1
+    img = np.full((h, w, 3), 150, np.uint8)
+    img[mask] = colour
+    return SimpleNamespace(image=img, mask=mask, id="blob", meta={})
+
+
+@pytest.fixture(scope="module")
+def sheet():
+    from conftest import GL_BACKEND, get_renderer
+    body = skin_sheet(np.random.default_rng(11), n=24, tex=1024, blur=3, amplitude=50)
+    r = get_renderer(GL_BACKEND, 128, 128)
+    return SimpleNamespace(body=body, r=r, tx=TexelGeometry.of(r, body.mesh))
+
+
+def test_paper_preset_has_the_papers_settings():
+    cfg = load_config(config_dir() / "paper.yaml")
+    assert cfg.views.lesion_bias == 0 and cfg.views.light_position == "paper"
+    assert cfg.views.light_offset == [0.0, 2.0]
+    b = cfg.blend
+    assert (b.method, b.steps, b.lr, b.content, b.style, b.gradient, b.tv) == \
+        ("deep", 400, 0.005, 2.0, 1e6, 1e5, 1e-4)
+    p = cfg.paste
+    assert (p.view_size, p.fov_deg, p.w, p.max_depth_change) == (512, 30.0, [0.4, 0.6], 0.02)
+    assert p.enlarge is False and p.overlap == "dilated"
+    assert max(cfg.lesions.size) <= 1 / 3 + 1e-9
+    v = cfg.views
+    assert (v.size, v.fov_deg, v.w, v.ambient, v.diffuse, v.specular, v.material_specular,
+            v.shininess, v.min_skin) == (512, 30.0, [0.1, 1.3], [0.2, 0.99], [0.2, 0.99], [0.0, 0.1],
+                                         [0.0, 0.05], [30.0, 60.0], 0.1)
+    assert v.flash == 0 and not v.shadows and v.wrap == [0.0, 0.0] and not cfg.photo.enabled
+    assert "nevi" in cfg.outputs
+
+
+@pytest.mark.parametrize("key,value", [("paste.overlap", "touching"), ("views.light_position", "sun"),
+                                       ("paste.enlarge", "sometimes")])
+def test_new_keys_are_validated(key, value):
+    with pytest.raises(ConfigError, match=key):
+        load_config(None, [f"{key}={value}"])
+
+
+def test_lesions_are_never_drawn_above_their_source_resolution(sheet):
+    """A 20-pixel lesion asked to cover 30-40% of a 128-pixel view: enlarge=False keeps
+    it at 20 view pixels (scale 1), the default scales it up ~2x."""
+    small = _blob(h=20, w=20)
+    extent = max(np.ptp(np.nonzero(small.mask)[0]), np.ptp(np.nonzero(small.mask)[1])) + 1
+    for enlarge in (False, True):
+        s = PasteSettings(view_size=128, w=(0.35, 0.45), size=(0.3, 0.4), max_depth_change=0.05,
+                          enlarge=enlarge)
+        p = Paster(sheet.r, sheet.body, sheet.tx, s).place(small, rng_for(0, "scale", enlarge))
+        assert p is not None
+        x0, y0, x1, y1 = p.view_box
+        if enlarge:
+            assert p.scale > 1.5
+        else:
+            assert p.scale == 1.0 and max(x1 - x0, y1 - y0) <= extent * math.sqrt(2) + 2
+
+
+def _min_gap_over_dilations(sheet, overlap, seed):
+    """Smallest surface gap between two lesions' texels, in units of the sum of their
+    dilation widths (dilation pixels at each placement's distance)."""
+    s = PasteSettings(view_size=128, w=(0.35, 0.45), size=(0.16, 0.2), max_depth_change=0.05,
+                      dilation=8, overlap=overlap, attempts=40)
+    res = paste_lesions(sheet.r, sheet.body, sheet.tx, [_blob() for _ in range(16)], s, ("o",), seed)
+    assert len(res.placements) >= 8
+    ids = res.instances[sheet.tx.rows, sheet.tx.cols]
+    pts = {p.instance: cKDTree(sheet.tx.points[ids == p.instance]) for p in res.placements}
+    width = {p.instance: 2 * p.camera["w"] * math.tan(math.radians(15)) / 128 * s.dilation
+             for p in res.placements}
+    return min(pts[i].query(pts[j].data)[0].min() / (width[i] + width[j])
+               for i in pts for j in pts if i < j)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_dilated_lesions_do_not_overlap(sheet, seed):
+    """overlap='dilated' (the original): two lesions are at least both dilation widths
+    apart. The default only keeps the new lesion's dilated region off the old lesion,
+    so packed lesions come closer (the control)."""
+    assert _min_gap_over_dilations(sheet, "dilated", seed) >= 0.9
+    assert _min_gap_over_dilations(sheet, "lesion", seed) < 0.9
+
+
+def test_paper_light_placement(renderer):
+    """The original's light: the camera position moved by up to 2 units along each axis,
+    away from the surface point; at the camera when the body blocks it. A roof over the
+    floor blocks lights more than 0.5 above the camera."""
+    rng0 = np.random.default_rng(0)
+    floor = plane(rng0, size=1.0)
+    roof = plane(rng0, size=1.0)
+    w = 0.4
+    roof_v = roof.vertices + (0, 0, w + 0.5)
+    mesh = gs.Mesh(np.r_[floor.vertices, roof_v], np.r_[floor.faces, roof.faces + 4],
+                   uvs=np.r_[floor.uvs, roof.uvs], texture=floor.texture, name="floor+roof")
+    body = SimpleNamespace(mesh=mesh)
+    v = ViewsConfig(size=64, w=[w, w], light_position="paper", light_offset=[0.0, 2.0])
+    at_camera = moved = 0
+    for seed in range(24):
+        # a surface point on the floor under the roof, normal +Z
+        rng = np.random.default_rng(seed)
+        while True:
+            scene = V.sample_scene(body, [], rng, v, renderer)
+            if scene.point[2] < 1e-9:
+                break
+        eye, light = np.asarray(scene.camera.eye), np.asarray(scene.light.position)
+        offset = (light - eye) * np.sign(eye - scene.point)
+        if np.allclose(light, eye):
+            at_camera += 1
+            continue
+        moved += 1
+        assert (offset >= -1e-12).all() and (offset <= 2 + 1e-12).all()
+        # light - eye is along +-x, +-y only where the camera is off the point in x, y
+        assert np.allclose((light - eye)[:2], 0) and light[2] < w + 0.5
+    assert at_camera and moved
