@@ -30,11 +30,15 @@ from functools import lru_cache
 
 import numpy as np
 
-from .colour import lab_to_srgb, srgb_to_lab
+from .colour import srgb_to_lab
 
 LAMBDA = np.arange(400.0, 701.0, 10.0)          # nm
+_D65 = np.array([0.95047, 1.0, 1.08883])
+_XYZ_TO_LINEAR = np.linalg.inv(np.array([[0.4124564, 0.3575761, 0.1804375],
+                                         [0.2126729, 0.7151522, 0.0721750],
+                                         [0.0193339, 0.1191920, 0.9503041]]))
 EPIDERMIS_CM = 0.006                            # 60 um
-EPI_SCATTER = 0.5       # the epidermis scatters half as much as the dermis per length
+EPI_SCATTER = 0.3       # the epidermis scatters 0.3 times as much as the dermis per length
 SURFACE = 0.015         # diffuse share of the surface reflection
 PAPILLARY_CM = 0.02     # 200 um of papillary dermis
 RETICULAR_BLOOD = 0.005 # blood volume fraction of the reticular dermis
@@ -118,22 +122,73 @@ def _km_layer(K, S, thickness):
     return np.sinh(b * sd) / den, b / den
 
 
-def skin_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
-    """sRGB in [0, 1] (..., 3) of skin with these chromophores."""
+def linear_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
+    """Linear sRGB (..., 3) of skin with these chromophores, not clipped: a value outside
+    [0, 1] is a colour outside sRGB's gamut."""
     sp = _spectra()
     r = reflectance(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis)
     xyz = r @ sp["weights"]                                  # (..., 3), white -> sp["white"]
-    xyz = xyz * (np.array([0.95047, 1.0, 1.08883]) / sp["white"])   # adapt to D65 white
-    lab = _xyz_to_lab(xyz)
-    return lab_to_srgb(lab)
+    xyz = xyz * (_D65 / sp["white"])                        # adapt to the D65 white
+    return xyz @ _XYZ_TO_LINEAR.T
 
 
-def _xyz_to_lab(xyz):
-    white = np.array([0.95047, 1.0, 1.08883])
-    t = xyz / white
-    d = 6.0 / 29.0
-    f = np.where(t > d ** 3, np.cbrt(np.maximum(t, 0)), t / (3 * d * d) + 4.0 / 29.0)
-    return np.stack([116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], -1)
+def skin_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
+    """sRGB in [0, 1] (..., 3) of skin with these chromophores."""
+    lin = np.clip(linear_rgb(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis), 0, 1)
+    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+
+
+# The look-up table of skin_rgb_fast: linear sRGB over (melanin, blood, oxygen) of skin
+# with its whole epidermis, melanin and blood log-spaced (0 in front), oxygen linear.
+_LUT_AXES = (np.r_[0.0, np.geomspace(1e-4, 1.0, 64)], np.r_[0.0, np.geomspace(1e-4, 0.7, 64)],
+             np.linspace(0.0, 1.0, 11))
+_LOG_EPS = 5e-5
+
+
+@lru_cache(maxsize=1)
+def _lut():
+    grids = np.meshgrid(*_LUT_AXES, indexing="ij")
+    rgb = skin_rgb(grids[0], grids[1], grids[2])
+    lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    coords = [np.log(_LUT_AXES[0] + _LOG_EPS), np.log(_LUT_AXES[1] + _LOG_EPS), _LUT_AXES[2]]
+    return lin.astype(np.float32), coords
+
+
+def _trilinear(table, coords, points):
+    """Multilinear interpolation of ``table`` (n0 x n1 x n2 x C) on the rectilinear grid
+    ``coords`` at ``points`` (N x 3), clamped to the grid."""
+    idx, frac = [], []
+    for d, ax in enumerate(coords):
+        x = np.clip(points[:, d], ax[0], ax[-1])
+        i = np.clip(np.searchsorted(ax, x) - 1, 0, len(ax) - 2)
+        idx.append(i)
+        frac.append(((x - ax[i]) / (ax[i + 1] - ax[i]))[:, None].astype(np.float32))
+    out = 0.0
+    for c0 in (0, 1):
+        for c1 in (0, 1):
+            for c2 in (0, 1):
+                w = ((frac[0] if c0 else 1 - frac[0]) * (frac[1] if c1 else 1 - frac[1])
+                     * (frac[2] if c2 else 1 - frac[2]))
+                out = out + w * table[idx[0] + c0, idx[1] + c1, idx[2] + c2]
+    return out
+
+
+def skin_rgb_fast(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
+    """``skin_rgb`` from a look-up table (within ~1/255 of it) where the epidermis is
+    whole and bilirubin and dermal melanin are 0, computed exactly elsewhere."""
+    mel, blood, oxy, bili, dmel, epi = np.broadcast_arrays(
+        *(np.asarray(x, np.float64) for x in (melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis)))
+    shape = mel.shape
+    mel, blood, oxy, bili, dmel, epi = (x.reshape(-1) for x in (mel, blood, oxy, bili, dmel, epi))
+    table, coords = _lut()
+    pts = np.stack([np.log(np.clip(mel, 0, 1) + _LOG_EPS), np.log(np.clip(blood, 0, 0.7) + _LOG_EPS),
+                    np.clip(oxy, 0, 1)], 1)
+    lin = np.clip(_trilinear(table, coords, pts), 0, 1)
+    out = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055).astype(np.float64)
+    exact = (bili > 0) | (dmel > 0) | (blood > 0.7) | (epi != 1)
+    if exact.any():
+        out[exact] = skin_rgb(mel[exact], blood[exact], oxy[exact], bili[exact], dmel[exact], epi[exact])
+    return out.reshape(shape + (3,))
 
 
 class SkinInverse:

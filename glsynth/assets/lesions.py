@@ -17,11 +17,11 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from ..errors import InputError
 from ..io.images import ImageError, read_mask, read_rgb
-from .colour import ita_range, lab_to_uint8, shades_of_gray
+from .colour import ita_range, shades_of_gray
+from .morphology import PRESETS, apply_to_skin, make_condition
 
 log = logging.getLogger(__name__)
 
@@ -383,11 +383,24 @@ def _csv_value(key, value):
 
 
 # ---------------------------------------------------------------------------------------
-# Procedural lesions. Colours are built in CIELAB: a textured skin patch, then each kind
-# adds a Lab offset weighted by a soft-edged alpha, so skin texture shows through where
-# the condition would not hide it. A height map adds relief through simple shading.
+# Procedural lesions: conditions composed from dermatology's vocabulary
+# (glsynth.assets.morphology), carried as the changes they make to the skin. Pasting
+# applies those changes to the body's own skin, at any resolution; ``image`` shows the
+# condition on a reference skin of the lesion's Fitzpatrick type (contact sheets,
+# held-out sets, and whatever wants a picture).
 
-KINDS = ("nevus", "melanoma", "psoriasis", "ulcer", "vitiligo", "eczema")
+KINDS = tuple(PRESETS)
+# melanin volume fraction of a reference skin per Fitzpatrick type (chromophore model)
+# (mid-band ITA 65, 48, 35, 20, -8, -51 degrees at 2% blood)
+_REFERENCE_MELANIN = {1: 0.011, 2: 0.036, 3: 0.061, 4: 0.093, 5: 0.17, 6: 0.31}
+
+
+@dataclass
+class FieldLesion(Lesion):
+    """A procedural condition: ``fields`` (a morphology.LesionFields) holds what it does
+    to the skin; ``image``/``mask`` show it on a reference skin, one pixel per grid
+    cell, the mask being the outline a dermatologist would draw."""
+    fields: object = None
 
 
 def fractal_noise(rng: np.random.Generator, shape, scale: float, octaves: int = 4,
@@ -404,305 +417,77 @@ def fractal_noise(rng: np.random.Generator, shape, scale: float, octaves: int = 
     return (out - out.mean()) / (out.std() + 1e-6)
 
 
-def _smoothstep(e0, e1, x):
-    t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
+def reference_skin(fitzpatrick: int, size: int, rng) -> np.ndarray:
+    """A size x size uint8 patch of healthy skin of a Fitzpatrick type from the
+    chromophore model, with gentle mottling."""
+    from .chromophores import skin_rgb
+    mel = _REFERENCE_MELANIN[int(fitzpatrick)] * np.exp(0.08 * fractal_noise(rng, (size, size), size / 3))
+    blood = 0.02 * np.exp(0.25 * fractal_noise(rng, (size, size), size / 4))
+    return np.clip(np.rint(skin_rgb(mel, blood) * 255), 0, 255).astype(np.uint8)
 
 
-def _dots(rng, shape, count, radius, where=None):
-    """Soft round dots (0..1) at random places, optionally only where `where` is True."""
-    h, w = shape
-    img = np.zeros(shape, np.float32)
-    ys, xs = rng.integers(0, h, count), rng.integers(0, w, count)
-    for y, x, r in zip(ys, xs, rng.uniform(0.6, 1.4, count) * radius):
-        if where is None or where[y, x]:
-            cv2.circle(img, (int(x), int(y)), max(1, int(round(r))), 1.0, -1, cv2.LINE_AA)
-    return cv2.GaussianBlur(img, (0, 0), max(0.5, radius * 0.4))
+class ProceduralLesions(Sequence):
+    """``n`` seeded procedural conditions (FieldLesion), made when first indexed: presets
+    from ``kinds`` (default: all of KINDS) in turn, each shown on a reference skin of a
+    Fitzpatrick type drawn from ``fitzpatrick`` (a type, a list, or None for any) on a
+    ``size``-cell grid. Lesion i depends only on (seed, i), so a longer set starts with
+    the shorter one."""
 
+    def __init__(self, n: int, seed: int = 0, size: int = 256, kinds=None, fitzpatrick=None):
+        kinds = list(KINDS if not kinds else ([kinds] if isinstance(kinds, str) else kinds))
+        bad = [k for k in kinds if k not in KINDS]
+        if bad:
+            raise ValueError(f"unknown procedural lesion kinds {bad}; choose from {KINDS}")
+        if size < 32:
+            raise ValueError(f"procedural lesion size must be >= 32 px, got {size}")
+        self.types = list(range(1, 7)) if fitzpatrick is None else np.atleast_1d(fitzpatrick).tolist()
+        for t in self.types:
+            ita_range(t)  # validates 1..6
+        self.n, self.seed, self.size, self.kinds = int(n), int(seed), int(size), kinds
+        self._made = {}
 
-def skin_colour(rng, fitzpatrick: int) -> np.ndarray:
-    """A Lab skin colour whose ITA lies in the band of `fitzpatrick`."""
-    lo, hi = ita_range(fitzpatrick)
-    ita = np.radians(rng.uniform(max(lo, -62.0), min(hi, 66.0)))
-    rho = rng.uniform(21.0, 27.0)  # distance from (b*=0, L*=50): fairly constant for skin
-    if ita < 0:
-        rho += 4.0 * np.sin(-ita)  # deep skin stays warm (b* ~ 15) rather than grey
-    return np.array([50 + rho * np.sin(ita), rng.uniform(9.0, 15.0), rho * np.cos(ita)])
+    def __len__(self):
+        return self.n
 
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(self.n))]
+        if not -self.n <= i < self.n:
+            raise IndexError(i)
+        i %= self.n
+        if i not in self._made:
+            if len(self._made) >= 64:
+                self._made.pop(next(iter(self._made)))
+            self._made[i] = self._make(i)
+        return self._made[i]
 
-def _skin_patch(rng, size, base):
-    """HxWx3 Lab skin: blotchy tone, pores, fine crease lines and a soft light gradient."""
-    lab = np.empty((size, size, 3), np.float32)
-    lab[:] = base
-    lab[..., 0] += 1.6 * fractal_noise(rng, (size, size), size / 3)
-    lab[..., 1] += 1.4 * fractal_noise(rng, (size, size), size / 5)
-    lab[..., 2] += 0.8 * fractal_noise(rng, (size, size), size / 4)
-    lab[..., 0] += 0.7 * fractal_noise(rng, (size, size), 2.0, octaves=2)
-    pores = _dots(rng, (size, size), size * size // 150, 0.8)
-    lab[..., 0] -= 2.5 * pores
-    # Micro-relief: fine bumps plus crease lines (valleys of stretched noise, two directions).
-    height = 0.6 * fractal_noise(rng, (size, size), 4.0, octaves=2) - 1.5 * pores
-    for angle in rng.uniform(0, 180, 2):
-        n = fractal_noise(rng, (size, size * 4), 6.0, octaves=2)
-        n = cv2.resize(n, (size, size), interpolation=cv2.INTER_AREA)
-        m = cv2.getRotationMatrix2D((size / 2, size / 2), angle, 1.3)
-        n = cv2.warpAffine(n, m, (size, size), borderMode=cv2.BORDER_REFLECT)
-        height -= 1.2 * _smoothstep(0.3, 0.0, np.abs(n))
-    _shade(lab, height, rng.uniform(2.0, 4.0), rng)
-    yy, xx = np.mgrid[0:size, 0:size] / size - 0.5
-    d = rng.normal(size=2)
-    lab[..., 0] += 3.0 * (xx * d[0] + yy * d[1]) / np.hypot(*d)
-    return lab
-
-
-def _blob(rng, size, radius, irregularity, warp, aspect):
-    """Signed distance (px, > 0 inside) of one connected, hole-free blob clear of the border."""
-    n = size
-    yy, xx = np.mgrid[0:n, 0:n].astype(np.float32)
-    cy, cx = n / 2 + rng.uniform(-0.03, 0.03, 2) * n
-    ang = rng.uniform(0, np.pi)
-    u = (xx - cx) * np.cos(ang) + (yy - cy) * np.sin(ang)
-    v = ((yy - cy) * np.cos(ang) - (xx - cx) * np.sin(ang)) / aspect
-    theta, r = np.arctan2(v, u), np.hypot(u, v)
-    radial = np.ones_like(r)
-    for k in range(2, 9):
-        radial += irregularity * rng.normal() / k ** 0.9 * np.cos(k * theta + rng.uniform(0, 2 * np.pi))
-    r = r + warp * radius * fractal_noise(rng, (n, n), radius / 2.5, octaves=2)
-    inside = r < radius * np.clip(radial, 0.5, 1.6)
-    margin = max(4, n // 24)
-    inside[:margin] = inside[-margin:] = False
-    inside[:, :margin] = inside[:, -margin:] = False
-    labels, count = ndimage.label(inside)
-    if count == 0:  # degenerate draw: fall back to a plain disc
-        inside = (xx - n / 2) ** 2 + (yy - n / 2) ** 2 < (0.25 * n) ** 2
-    else:
-        sizes = ndimage.sum(inside, labels, range(1, count + 1))
-        inside = ndimage.binary_fill_holes(labels == 1 + int(np.argmax(sizes)))
-    m8 = inside.astype(np.uint8)
-    return (cv2.distanceTransform(m8, cv2.DIST_L2, 5)
-            - cv2.distanceTransform(1 - m8, cv2.DIST_L2, 5)).astype(np.float32)
-
-
-def _shade(lab, height, strength, rng):
-    """Lambert-like relief: brighten slopes facing a random light, darken the others."""
-    gy, gx = np.gradient(height)
-    a = rng.uniform(0, 2 * np.pi)
-    lab[..., 0] += strength * (gx * np.cos(a) + gy * np.sin(a))
+    def _make(self, i):
+        rng = np.random.default_rng([self.seed, i])
+        kind = self.kinds[i % len(self.kinds)]
+        fitz = int(self.types[rng.integers(len(self.types))])
+        fields = make_condition(kind, [self.seed, i], size=self.size)
+        image = apply_to_skin(fields, reference_skin(fitz, self.size, rng))
+        meta = {"kind": kind, "preset": kind, "seed": self.seed, "index": i, "fitzpatrick": fitz,
+                "grid": self.size, "extent_mm": round(fields.extent_mm, 2),
+                "instances": int(fields.instances.max()), "params": fields.params}
+        return FieldLesion(image, fields.mask.copy(), f"procedural-{kind}-{self.seed}-{i}", meta,
+                           fields=fields)
 
 
 def procedural_lesions(n: int, seed: int = 0, size: int = 256, kinds=None,
                        fitzpatrick=None) -> list[Lesion]:
-    """`n` seeded procedural skin conditions on skin patches (size x size RGB + mask).
-
-    kinds: names from KINDS (default: all), used in turn. fitzpatrick: skin type 1..6 for
-    every patch, a list to draw from, or None for any. Lesion i depends only on (seed, i),
-    so a longer list starts with the shorter one.
-    """
-    kinds = list(KINDS if kinds is None else ([kinds] if isinstance(kinds, str) else kinds))
-    bad = [k for k in kinds if k not in KINDS]
-    if bad or not kinds:
-        raise ValueError(f"unknown procedural lesion kinds {bad or kinds}; choose from {KINDS}")
-    if size < 32:
-        raise ValueError(f"procedural lesion size must be >= 32 px, got {size}")
-    types = list(range(1, 7)) if fitzpatrick is None else np.atleast_1d(fitzpatrick).tolist()
-    for t in types:
-        ita_range(t)  # validates 1..6
-    out = []
-    for i in range(int(n)):
-        rng = np.random.default_rng([int(seed), i])
-        kind = kinds[i % len(kinds)]
-        fitz = int(types[rng.integers(len(types))])
-        base = skin_colour(rng, fitz)
-        skin = _skin_patch(rng, size, base)
-        lab, sd, params = _RENDER[kind](rng, skin.copy(), base, size)
-        rgb = lab_to_uint8(lab).astype(np.float32)
-        rgb = cv2.GaussianBlur(rgb, (0, 0), 0.55) + rng.normal(0, 1.2, rgb.shape)
-        image = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
-        params = {k: (round(float(v), 4) if np.isscalar(v) and not isinstance(v, str) else v)
-                  for k, v in params.items()}
-        meta = {"kind": kind, "seed": int(seed), "index": i, "fitzpatrick": fitz,
-                "skin_lab": [round(float(c), 2) for c in base], "params": params}
-        out.append(Lesion(image, sd > 0, f"procedural-{kind}-{seed}-{i}", meta))
-    return out
+    """A list of ``ProceduralLesions(n, seed, size, kinds, fitzpatrick)``."""
+    return list(ProceduralLesions(n, seed, size, kinds, fitzpatrick))
 
 
-def _apply(lab, alpha, target):
-    """Move `lab` towards the per-pixel Lab `target` by `alpha` (HxW, 0..1)."""
-    lab += alpha[..., None] * (target - lab)
-
-
-def _nevus(rng, lab, base, n):
-    radius = rng.uniform(0.17, 0.27) * n
-    sd = _blob(rng, n, radius, rng.uniform(0.04, 0.09), rng.uniform(0.02, 0.05), rng.uniform(0.75, 1.0))
-    dark = rng.uniform(0.5, 0.72)
-    col = np.array([max(14.0, base[0] * dark), rng.uniform(7, 12),
-                    rng.uniform(17, 27) * min(1, base[0] / 50)])
-    t = np.empty_like(lab)
-    t[:] = col
-    core = _smoothstep(0, radius * 0.8, sd)
-    t[..., 0] += rng.uniform(-5, 4) * core + 2.5 * fractal_noise(rng, (n, n), radius / 4)
-    t[..., 2] += 2.0 * fractal_noise(rng, (n, n), radius / 3)
-    t[..., 0] -= 5 * _dots(rng, (n, n), 25, 1.2, where=sd > radius * 0.2)
-    edge = rng.uniform(0.015, 0.03) * n
-    alpha = _smoothstep(-1.5, edge, sd) * rng.uniform(0.9, 1.0)
-    _apply(lab, alpha, t)
-    height = rng.uniform(0, 6) * _smoothstep(-2, radius, sd)
-    _shade(lab, height, 4.0, rng)
-    return lab, sd, {"radius": radius, "darkness": dark, "edge_px": edge}
-
-
-def _melanoma(rng, lab, base, n):
-    radius = rng.uniform(0.22, 0.3) * n
-    irr = rng.uniform(0.14, 0.24)
-    sd = _blob(rng, n, radius, irr, rng.uniform(0.08, 0.16), rng.uniform(0.65, 0.95))
-    shape = (n, n)
-    yy, xx = np.mgrid[0:n, 0:n] / n - 0.5
-    d = rng.normal(size=2)
-    asym = (xx * d[0] + yy * d[1]) / np.hypot(*d) * 3.0  # one side darker: asymmetry
-
-    def field(scale):  # smooth blotches: colours in melanoma merge rather than tile
-        return fractal_noise(rng, shape, scale, octaves=2, persistence=0.4)
-
-    darkness = field(radius / 2) + asym
-    t = np.empty_like(lab)
-    t[:] = (max(20.0, base[0] * 0.72), 13, 24 * min(1, base[0] / 55))
-    palette = [((max(12, base[0] * 0.42), 11, 14), _smoothstep(-0.6, 0.8, darkness)),  # dark brown
-               ((12, 3, 3), 0.9 * _smoothstep(0.8, 1.8, darkness)),                     # black
-               ((42, 0, -5), 0.6 * _smoothstep(0.5, 1.8, field(radius / 2.5))),         # blue-grey veil
-               ((50, 22, 14), 0.45 * _smoothstep(0.8, 2.0, field(radius / 2.5))),       # erythema
-               ((70, 7, 11), 0.55 * _smoothstep(1.4, 2.4, field(radius / 3)))]          # regression
-    for col, w in palette:
-        _apply(t, w.astype(np.float32), np.array(col, np.float32))
-    t[..., 0] += 2.0 * fractal_noise(rng, shape, 3.0, octaves=2)
-    t[..., 0] -= 10 * _dots(rng, shape, 40, 1.6, where=(sd > 0) & (sd < radius * 0.35))
-    edge = np.maximum(1.0, 0.02 * n * (1 + 0.9 * field(radius / 2)))
-    alpha = np.clip((sd + 1.5) / (edge + 1.5), 0, 1)
-    _apply(lab, (alpha * alpha * (3 - 2 * alpha)).astype(np.float32), t)
-    inside = _smoothstep(-2, radius * 0.6, sd)
-    _shade(lab, inside * (3.0 + fractal_noise(rng, shape, 6.0)), 3.0, rng)
-    return lab, sd, {"radius": radius, "irregularity": irr}
-
-
-def _psoriasis(rng, lab, base, n):
-    radius = rng.uniform(0.24, 0.32) * n
-    sd = _blob(rng, n, radius, rng.uniform(0.08, 0.14), rng.uniform(0.06, 0.12), rng.uniform(0.6, 0.95))
-    shape = (n, n)
-    fair = np.clip((base[0] - 25) / 45, 0, 1)  # dark skin: violaceous/brown, not bright red
-    t = lab.copy()
-    t[..., 0] = base[0] - rng.uniform(6, 12) + 2 * fractal_noise(rng, shape, radius / 4)
-    t[..., 1] = min(28.0, base[1] + 6 + rng.uniform(8, 16) * fair) + 3 * fractal_noise(rng, shape, radius / 3)
-    t[..., 2] = max(base[2], 13) + 2 * fair  # salmon-red, not magenta
-    alpha = _smoothstep(-1.5, rng.uniform(2, 4), sd)
-    _apply(lab, alpha, t)
-    # Silvery scale: thick plates inside the plaque split by fine fissures, thin at the rim.
-    cover = fractal_noise(rng, shape, radius / 2.5, octaves=2) + 2.0 * _smoothstep(0, radius * 0.6, sd)
-    fissures = _smoothstep(0.03, 0.12, np.abs(fractal_noise(rng, shape, 9.0, octaves=2)))
-    thick = 0.6 + 0.4 * _smoothstep(-1, 1, fractal_noise(rng, shape, 5.0, octaves=2))
-    flakes = _smoothstep(0.4, 1.3, cover) * (0.35 + 0.65 * fissures) * thick * _smoothstep(2, 10, sd)
-    scale_col = np.empty_like(lab)
-    scale_col[:] = (min(88, max(base[0] + 16, 70)), 1.5, 5)
-    scale_col[..., 0] += 2.5 * fractal_noise(rng, shape, 2.5, octaves=2)
-    amount = rng.uniform(0.65, 0.9)
-    _apply(lab, (amount * flakes).astype(np.float32), scale_col)
-    _shade(lab, 3 * _smoothstep(-2, 6, sd) + 3.0 * flakes, 4.0, rng)
-    return lab, sd, {"radius": radius, "scale_amount": amount}
-
-
-def _ulcer(rng, lab, base, n):
-    radius = rng.uniform(0.2, 0.3) * n
-    sd = _blob(rng, n, radius, rng.uniform(0.06, 0.12), rng.uniform(0.04, 0.08), rng.uniform(0.7, 1.0))
-    shape = (n, n)
-    rim = rng.uniform(0.1, 0.22) * radius
-    bed = _smoothstep(rim * 0.5, rim * 1.3, sd)
-    # Periwound: macerated pale-pink rim on fair skin, hyperpigmented rim on dark skin.
-    t = lab.copy()
-    if base[0] > 50 and rng.random() < 0.7:
-        t[..., 0] += rng.uniform(2, 6); t[..., 1] += rng.uniform(6, 12); t[..., 2] -= 3
-    else:
-        t[..., 0] -= rng.uniform(8, 15); t[..., 1] += 3
-    _apply(lab, _smoothstep(-0.25 * rim, rim * 0.4, sd) * (1 - bed), t)
-    lab[..., 1] += 4 * _smoothstep(-0.35 * radius, 0, sd) * (sd <= 0)  # faint erythema halo
-    # Bed: granulation (beefy red, granular) with yellow slough and maybe dark eschar.
-    # Granulation is cobbled: packed round buds a few pixels wide.
-    grain = _dots(rng, shape, n * n // 12, rng.uniform(1.6, 2.4), where=sd > 0)
-    grain = (grain - grain.mean()) / (grain.std() + 1e-6) + 0.3 * fractal_noise(rng, shape, 1.5, octaves=1)
-    gran = np.empty_like(lab)
-    gran[:] = (rng.uniform(34, 44), rng.uniform(40, 50), rng.uniform(22, 30))
-    gran[..., 0] += 2.0 * grain + 3 * fractal_noise(rng, shape, radius / 3)
-    yy, xx = np.mgrid[0:n, 0:n]
-    off = rng.uniform(-0.25, 0.25, 2) * radius
-    centre = 1 - np.hypot(yy - n / 2 - off[0], xx - n / 2 - off[1]) / radius
-    patchy = fractal_noise(rng, shape, radius / 2.5, octaves=2, persistence=0.4)
-    slough_w = _smoothstep(-0.1, 0.9, centre + 0.4 * patchy + rng.uniform(-0.4, 0.2))
-    slough = np.empty_like(lab)
-    slough[:] = (rng.uniform(68, 78), rng.uniform(5, 10), rng.uniform(24, 36))
-    slough[..., 0] += 3 * fractal_noise(rng, shape, 4.0, octaves=2)
-    _apply(gran, (0.85 * slough_w).astype(np.float32), slough)
-    if rng.random() < 0.3:  # a patch of dark necrotic tissue
-        eschar = _smoothstep(0.8, 2.0, fractal_noise(rng, shape, radius / 2, octaves=1)) * bed
-        _apply(gran, (0.8 * eschar).astype(np.float32), np.array((28, 12, 14), np.float32))
-    _apply(lab, bed.astype(np.float32), gran)
-    height = -6 * bed + 1.2 * grain * bed + 2 * _smoothstep(-rim, 0, sd) * (1 - bed)
-    _shade(lab, height, 4.0, rng)
-    gy, gx = np.gradient(cv2.GaussianBlur(grain, (0, 0), 0.8))
-    glint = _smoothstep(0.4, 0.8, gx - gy) * bed * (1 - 0.7 * slough_w)  # moist wound bed
-    lab[..., 0] += 9 * glint
-    lab[..., 1] -= 4 * glint
-    return lab, sd, {"radius": radius, "rim_px": rim}
-
-
-def _vitiligo(rng, lab, base, n):
-    radius = rng.uniform(0.22, 0.32) * n
-    sd = _blob(rng, n, radius, rng.uniform(0.15, 0.25), rng.uniform(0.1, 0.18), rng.uniform(0.6, 1.0))
-    shape = (n, n)
-    # Melanin removed: what is left is the pinkish ivory of dermis and blood.
-    white = np.array((min(92, max(rng.uniform(76, 84), base[0] + 9)), rng.uniform(6, 10),
-                      min(rng.uniform(9, 14), base[2] - 3)), np.float32)
-    t = lab - base + white  # keep the skin's own texture, change its pigment
-    alpha = _smoothstep(-1.0, rng.uniform(1.5, 3.0), sd)
-    # Perifollicular repigmentation: skin-coloured freckles inside the patch.
-    repig = _dots(rng, shape, int(rng.uniform(0, 40)), rng.uniform(1.2, 2.5), where=sd > 4)
-    alpha = alpha * (1 - 0.8 * np.clip(repig * 2, 0, 1)) * rng.uniform(0.85, 1.0)
-    alpha *= 1 - 0.25 * _smoothstep(0, 1.5, fractal_noise(rng, shape, radius / 3, octaves=3))
-    if rng.random() < 0.4:  # trichrome vitiligo: a partly depigmented band inside the border
-        alpha *= 1 - 0.4 * _smoothstep(0.15 * radius, 0.02 * radius, sd)
-    t[..., 0] += 0.6 * (lab[..., 0] - base[0])  # texture reads weaker on white: boost it
-    _apply(lab, alpha.astype(np.float32), t)
-    if base[0] < 55:  # slightly hyperpigmented border on darker skin
-        lab[..., 0] -= 4 * _smoothstep(-6, -1, sd) * _smoothstep(0, -6, sd) * (sd < 0)
-    return lab, sd, {"radius": radius}
-
-
-def _eczema(rng, lab, base, n):
-    radius = rng.uniform(0.22, 0.3) * n
-    sd = _blob(rng, n, radius, rng.uniform(0.1, 0.2), rng.uniform(0.1, 0.2), rng.uniform(0.6, 1.0))
-    shape = (n, n)
-    fair = np.clip((base[0] - 25) / 45, 0, 1)
-    inside = _smoothstep(-3, rng.uniform(0.05, 0.1) * n, sd)  # ill-defined border
-    intensity = inside * (0.75 + 0.25 * fractal_noise(rng, shape, radius / 3))
-    lab[..., 0] -= intensity * (4 + 6 * (1 - fair))
-    lab[..., 1] += intensity * (7 + 12 * fair)
-    lab[..., 2] += intensity * (1.5 + 3 * fair)
-    papules = _dots(rng, shape, 150, rng.uniform(1.2, 2.2), where=sd > 2)
-    lab[..., 1] += 12 * fair * papules
-    lab[..., 0] -= 4 * papules
-    # Excoriations: short scratch marks with crusts.
-    scratches = np.zeros(shape, np.float32)
-    for _ in range(int(rng.integers(3, 9))):
-        y, x = rng.uniform(-0.6, 0.6, 2) * radius + n / 2
-        a, ln = rng.uniform(0, np.pi), rng.uniform(0.04, 0.14) * radius
-        for k in range(int(ln)):  # an excoriation: a broken row of small erosions
-            if rng.random() < 0.6:
-                px, py = x + (k - ln / 2) * np.cos(a), y + (k - ln / 2) * np.sin(a)
-                cv2.circle(scratches, (int(px), int(py)), 1, float(rng.uniform(0.5, 1)), -1, cv2.LINE_AA)
-    scratches = cv2.GaussianBlur(scratches, (0, 0), 0.7) * (sd > 3)
-    crust = np.array((max(22, base[0] * 0.7), 28, 26), np.float32)  # dried blood / serum
-    _apply(lab, np.clip(scratches, 0, 0.7).astype(np.float32), crust)
-    flakes = _smoothstep(1.2, 2.0, fractal_noise(rng, shape, 2.0, octaves=2)) * inside
-    lab[..., 0] += 10 * flakes * rng.uniform(0.3, 1.0)
-    _shade(lab, 2.0 * papules + inside * 2 + fractal_noise(rng, shape, 3.0, octaves=2) * inside, 3.0, rng)
-    return lab, sd, {"radius": radius, "redness": 5 + 12 * float(fair)}
-
-
-_RENDER = {"nevus": _nevus, "melanoma": _melanoma, "psoriasis": _psoriasis,
-           "ulcer": _ulcer, "vitiligo": _vitiligo, "eczema": _eczema}
+def lesion_from_meta(meta: dict) -> Lesion:
+    """The lesion a placement recorded (its ``lesion_meta``): a procedural condition made
+    again from its preset, seed and index, or a lesion image read again from its files."""
+    if meta.get("preset"):
+        fields = make_condition(meta["preset"], [int(meta["seed"]), int(meta["index"])],
+                                size=int(meta.get("grid", 256)))
+        return FieldLesion(np.zeros(fields.mask.shape + (3,), np.uint8), fields.mask.copy(),
+                           f"procedural-{meta['preset']}-{meta['seed']}-{meta['index']}", meta,
+                           fields=fields)
+    return load_lesion(meta["image_path"], meta["mask_path"], meta.get("id"), meta,
+                       colour_constancy=bool(meta.get("colour_constancy")))

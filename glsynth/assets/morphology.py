@@ -2,8 +2,9 @@
 sit on (glsynth.assets.chromophores), not as pictures.
 
 A condition is a :class:`LesionFields`: on a square grid covering ``extent_mm``, maps of
-what the condition does to the skin: epidermal melanin (a factor), blood (a factor and
-an amount added, its oxygen saturation), dermal melanin, bilirubin, how much epidermis
+what the condition does to the skin: epidermal melanin (a factor and an amount
+added: a naevus's melanocytes make melanin whatever the skin around), blood (a factor
+and an amount added, its oxygen saturation), dermal melanin, bilirubin, how much epidermis
 is left (0 in an erosion or ulcer), coverage by scale and crust of a given colour,
 height (mm: plaques, nodules, ulcers), gloss (moist or tense surfaces), how much of the
 skin's micro-relief shows (0 smooth, 1 normal, 2 lichenified), and the mask a
@@ -35,12 +36,14 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from .chromophores import skin_inverse, skin_rgb
+from ..sampling import sample_bilinear
+from .chromophores import skin_inverse, skin_rgb_fast
 from .colour import lab_to_srgb
 
-FIELDS = ("melanin", "blood", "blood_add", "oxygen", "dermal_melanin", "bilirubin", "epidermis",
-          "scale", "crust", "height", "gloss", "detail")
-NEUTRAL = {"melanin": 1.0, "blood": 1.0, "blood_add": 0.0, "oxygen": 0.75, "dermal_melanin": 0.0,
+FIELDS = ("melanin", "melanin_add", "blood", "blood_add", "oxygen", "dermal_melanin", "bilirubin",
+          "epidermis", "scale", "crust", "height", "gloss", "detail")
+NEUTRAL = {"melanin": 1.0, "melanin_add": 0.0, "blood": 1.0, "blood_add": 0.0, "oxygen": 0.75,
+           "dermal_melanin": 0.0,
            "bilirubin": 0.0, "epidermis": 1.0, "scale": 0.0, "crust": 0.0, "height": 0.0,
            "gloss": 0.0, "detail": 1.0}
 SCALE_COLOURS = {"white": (236, 232, 226), "silvery": (214, 218, 222), "greasy": (205, 178, 120)}
@@ -64,6 +67,24 @@ class LesionFields:
     @property
     def size(self) -> int:
         return self.mask.shape[0]
+
+    @property
+    def influence(self) -> np.ndarray:
+        """0..1: how much the condition changes the skin at each grid cell (1 on the
+        mask; 0 where it leaves the skin as it is), widened by a cell and smoothed, so
+        that it can serve as the blend weight of a decal."""
+        if getattr(self, "_influence", None) is None:
+            f = self.f
+            dev = np.maximum.reduce([
+                np.abs(np.log(np.maximum(f["melanin"], 1e-3))) / 0.3, f["melanin_add"] / 0.01,
+                np.abs(f["blood"] - 1) / 0.3,
+                f["blood_add"] / 0.02, f["dermal_melanin"] / 0.005, f["bilirubin"] / 0.05,
+                np.abs(f["epidermis"] - 1) / 0.3, f["scale"] / 0.05, f["crust"] / 0.05,
+                np.abs(f["height"]) / 0.05, f["gloss"] / 0.1, np.abs(f["detail"] - 1) / 0.2])
+            w = np.maximum(np.clip(dev, 0, 1), self.mask).astype(np.float32)
+            w = cv2.dilate(w, np.ones((3, 3), np.uint8))
+            self._influence = cv2.GaussianBlur(w, (0, 0), 1.0)
+        return self._influence
 
     @property
     def mm_per_px(self) -> float:
@@ -234,7 +255,7 @@ class Builder:
         self.mix("epidermis", w, 0.0)
         self.f["melanin"] *= 1 - 0.8 * w
         self.f["height"] -= depth_mm * w
-        self.f["gloss"] = np.maximum(self.f["gloss"], 0.8 * w)
+        self.f["gloss"] = np.maximum(self.f["gloss"], 0.5 * w)
         self.f["detail"] *= 1 - w
 
 
@@ -246,7 +267,7 @@ def _size(rng, lo_mm, hi_mm):
 def _nevus(b, rng, R):
     sd = b.c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.05, warp=0.03)
     w = b.weight(sd, R * 0.15)
-    b.mix("melanin", w * (0.85 + 0.15 * b.c.noise(R / 3, 2)), rng.uniform(3.0, 6.0))
+    b.f["melanin_add"] += w * (0.85 + 0.15 * b.c.noise(R / 3, 2)) * rng.uniform(0.08, 0.35)
     if rng.random() < 0.4:  # compound / intradermal: raised, a little dermal pigment
         b.f["height"] += rng.uniform(0.3, 1.2) * smoothstep(-R * 0.1, R * 0.8, sd)
         b.f["dermal_melanin"] += 0.01 * w
@@ -259,10 +280,12 @@ def _melanoma(b, rng, R):
     sd = c.shape("round", R, aspect=rng.uniform(0.6, 0.95), irregular=rng.uniform(0.15, 0.3), warp=0.15)
     w = b.weight(sd, R * 0.3, "ill-defined" if rng.random() < 0.4 else "sharp")
     d = c.noise(R / 2.5, 3) + 1.2 * (c.x * rng.normal() + c.y * rng.normal()) / R   # asymmetry
-    b.mix("melanin", w, 3.0 + 3.0 * smoothstep(-1.0, 1.5, d))
-    b.f["dermal_melanin"] += w * 0.04 * smoothstep(0.3, 1.8, c.noise(R / 3, 2))        # blue-grey veil
+    b.f["melanin_add"] += w * (0.08 + 0.45 * smoothstep(-1.0, 1.5, d))                # brown to black
+    b.f["dermal_melanin"] += w * 0.015 * smoothstep(0.6, 1.8, c.noise(R / 3, 2))       # blue-grey veil
     b.erythema(w * smoothstep(0.5, 2.0, c.noise(R / 3, 2)), 1.5)
-    b.mix("melanin", w * 0.7 * smoothstep(1.2, 2.4, c.noise(R / 3, 2)), 0.6)          # regression
+    regress = w * 0.7 * smoothstep(1.2, 2.4, c.noise(R / 3, 2))                        # regression
+    b.mix("melanin_add", regress, 0.0)
+    b.mix("melanin", regress, 0.6)
     b.f["height"] += rng.uniform(0.0, 0.8) * smoothstep(0, R, sd)
     b.outline(w, 0.35)
     return {"irregularity": "high"}
@@ -314,13 +337,13 @@ def _eczema(b, rng, R):
     pap = smoothstep(0.8, 1.6, c.noise(max(0.6, R / 25), 1)) * w
     b.f["height"] += 0.25 * pap
     b.erythema(pap, 3.0)
-    b.scale(w, 0.3, 0.6, "white")
+    b.scale(w, 0.12, 0.6, "white")
     for _ in range(int(rng.integers(2, 8))):
         centre = rng.uniform(-R, R, 2) * 0.6
         line = c.shape("linear", R * rng.uniform(0.1, 0.25), centre=centre, width=max(0.3, R * 0.02), aspect=1.0)
         e = b.weight(line, 0.2) * w
         b.erode(e, 0.05)
-        b.crust(e, 0.8, "haemorrhagic")
+        b.crust(e, 0.6, "haemorrhagic")
     if rng.random() < 0.5:
         b.f["detail"] *= 1 + 1.0 * w          # lichenification
         b.f["melanin"] *= 1 + 0.6 * w
@@ -384,7 +407,7 @@ def _seb_keratosis(b, rng, R):
     c = b.c
     sd = c.shape("oval", R, aspect=rng.uniform(0.6, 0.95), irregular=0.12, warp=0.06)
     w = b.weight(sd, R * 0.05)                                          # stuck-on: sharp
-    b.mix("melanin", w * (0.8 + 0.2 * c.noise(R / 4, 2)), rng.uniform(2.0, 5.0))
+    b.f["melanin_add"] += w * (0.8 + 0.2 * c.noise(R / 4, 2)) * rng.uniform(0.05, 0.3)
     warts = smoothstep(-0.5, 1.0, c.noise(max(0.4, R / 10), 2))
     b.f["height"] += w * (0.6 + 0.4 * warts) * rng.uniform(0.5, 1.2)
     b.f["detail"] *= 1 + 1.5 * w
@@ -463,7 +486,7 @@ def _ulcer(b, rng, R):
     b.erode(bed, rng.uniform(0.5, 2.0))
     gran = smoothstep(-0.5, 1.0, c.noise(max(0.5, R / 12), 2))
     b.f["blood_add"] += bed * (0.3 + 0.2 * gran)                        # beefy granulation
-    b.f["height"] += 0.2 * bed * gran
+    b.f["height"] += 0.08 * bed * gran
     slough = smoothstep(0.2, 1.2, c.noise(R / 2.5, 2)) * bed
     b.crust(slough, rng.uniform(0.4, 0.9), "serous")                    # yellow fibrin
     if rng.random() < 0.3:
@@ -548,9 +571,15 @@ def make_condition(preset: str, seed, size=512, extent_mm=None) -> LesionFields:
     canvas = Canvas(rng, int(size), extent * 1.4)                       # margin for borders
     b = Builder(canvas)
     extra = build(b, rng, extent / 2) or {}
-    for k in FIELDS:
-        b.f[k] = b.f[k].astype(np.float32)
     b.f["height"] = cv2.GaussianBlur(b.f["height"], (0, 0), max(0.6, 0.05 / canvas.px))
+    # the condition fades out before the grid's edge, so that nothing is cut off there
+    edge = np.minimum.reduce([np.arange(size), np.arange(size)[::-1]]).astype(np.float32)
+    taper = smoothstep(0.0, 0.06 * size, edge)
+    taper = np.minimum.outer(taper, taper)
+    for k in FIELDS:
+        b.f[k] = (NEUTRAL[k] + (b.f[k] - NEUTRAL[k]) * taper).astype(np.float32)
+    b.mask &= taper > 0.5
+    b.instances[~b.mask] = 0
     if not b.mask.any():      # a draw that left nothing outlined: the strongest change
         strength = np.abs(b.f["blood"] - 1) + np.abs(b.f["melanin"] - 1) + b.f["scale"] + b.f["crust"]
         b.outline(strength / max(strength.max(), 1e-6), 0.5)
@@ -587,9 +616,11 @@ def apply_to_skin(fields: LesionFields, skin_rgb_uint8: np.ndarray, at=None) -> 
         vals = {k: v.reshape(-1) for k, v in fields.f.items()}
     else:
         rows, cols = np.asarray(at, np.float32).T
-        vals = {k: _bilinear(v, rows, cols) for k, v in fields.f.items()}
+        vals = {k: sample_bilinear(v, cols - 0.5, rows - 0.5, cv2.BORDER_REPLICATE)
+                for k, v in fields.f.items()}
     mel, blood, residual = skin_inverse()(flat)
-    model = skin_rgb(mel * vals["melanin"], np.clip(blood * vals["blood"] + vals["blood_add"], 0, 0.7),
+    model = skin_rgb_fast(np.clip(mel * vals["melanin"] + vals["melanin_add"], 0, 1),
+                          np.clip(blood * vals["blood"] + vals["blood_add"], 0, 0.7),
                      vals["oxygen"],
                      vals["bilirubin"], vals["dermal_melanin"], vals["epidermis"])
     from .colour import srgb_to_lab
@@ -599,15 +630,3 @@ def apply_to_skin(fields: LesionFields, skin_rgb_uint8: np.ndarray, at=None) -> 
         a = np.clip(vals[name], 0, 1)[:, None]
         out = out * (1 - a) + (np.asarray(colour, np.float64) / 255.0) * a
     return np.clip(np.rint(out * 255), 0, 255).astype(np.uint8).reshape(shape)
-
-
-def _bilinear(img, rows, cols):
-    """img (H x W float32) at float (row, col) pixel-centre positions, clamped."""
-    h, w = img.shape
-    r = np.clip(rows - 0.5, 0, h - 1)
-    c = np.clip(cols - 0.5, 0, w - 1)
-    r0, c0 = np.floor(r).astype(np.int64), np.floor(c).astype(np.int64)
-    r1, c1 = np.minimum(r0 + 1, h - 1), np.minimum(c0 + 1, w - 1)
-    fr, fc = r - r0, c - c0
-    return ((img[r0, c0] * (1 - fc) + img[r0, c1] * fc) * (1 - fr)
-            + (img[r1, c0] * (1 - fc) + img[r1, c1] * fc) * fr)

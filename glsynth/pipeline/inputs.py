@@ -19,8 +19,9 @@ def lesion_source(cfg: Config):
     from .. import assets
     le = cfg.lesions
     if le.source == "procedural":
+        from ..assets.lesions import ProceduralLesions
         n = max(le.per_body * cfg.bodies.count, 1)
-        return assets.procedural_lesions(n, seed=cfg.seed)
+        return ProceduralLesions(n, seed=cfg.seed, size=le.resolution, kinds=le.kinds)
     return assets.load_lesions(le.source, layout=le.layout, colour_constancy=le.colour_constancy,
                                min_size=le.min_size, max_mask_fraction=le.max_mask_fraction)
 
@@ -29,7 +30,8 @@ def background_source(cfg: Config):
     from .. import assets
     b = cfg.backgrounds
     if b.source == "procedural":
-        return assets.procedural_backgrounds(b.count, seed=cfg.seed, size=cfg.views.size)
+        return assets.procedural_backgrounds(b.count, seed=cfg.seed, size=cfg.views.size,
+                                             clinical=b.clinical)
     return assets.load_backgrounds(b.source)
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import GlsynthError
+from ..sampling import sample_bilinear
 from .seeding import rng_for
 
 log = logging.getLogger(__name__)
@@ -47,6 +48,15 @@ class Placement:
     view_box: list           # [x0, y0, x1, y1) of the lesion in the placement view
     texel_box: list          # [x0, y0, x1, y1) of its texels
     texels: int
+    # "image": a picture pasted, then blended; "fields": a procedural condition applied to
+    # the body's own skin (no blending needed)
+    kind: str = "image"
+    instance_ids: list | None = None   # every id this placement holds (several lesions)
+    affine: list | None = None         # 2x3: lesion (image or grid) pixels -> view pixels
+
+    @property
+    def ids(self) -> list:
+        return list(self.instance_ids or [self.instance])
 
 
 @dataclass
@@ -117,6 +127,21 @@ def compose_lesion(lesion, view_size, extent_px, flip_h, flip_v, angle_deg, max_
     return a, scale
 
 
+FIELD_FILL = 0.8   # share of its placement view that a procedural condition's grid spans
+
+
+def compose_grid(grid_size, view_size, extent_px, flip_h, flip_v, angle_deg):
+    """Affine (2x3) from a condition's grid pixels to view pixels: the grid's centre at
+    the view centre, its side ``extent_px`` long; and the scale."""
+    c = (grid_size - 1) / 2
+    scale = extent_px / grid_size
+    a = cv2.getRotationMatrix2D((float(c), float(c)), float(angle_deg), float(scale))
+    flip = np.diag([-1.0 if flip_h else 1.0, -1.0 if flip_v else 1.0])
+    a[:, :2] = flip @ a[:, :2]
+    a[:, 2] = (view_size - 1) / 2 - a[:, :2] @ np.array([c, c])
+    return a, scale
+
+
 def warp_lesion(lesion, affine, view_size):
     img = cv2.warpAffine(lesion.image.astype(np.float32) / 255, affine, (view_size, view_size),
                          flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -164,7 +189,10 @@ class Paster:
     def place(self, lesion, rng) -> Placement | None:
         """Try up to ``attempts`` places; paste and return the placement, or None."""
         s, mesh = self.s, self.body.mesh
-        k = len(self.result.placements) + 1
+        k = max((max(p.ids) for p in self.result.placements), default=0) + 1
+        fields = getattr(lesion, "fields", None)
+        unit = mesh.skin.unit if mesh.skin is not None else 1.0
+        half_tan = math.tan(math.radians(s.fov_deg) / 2)
         reasons = {}
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * s.dilation + 1,) * 2)
         for attempt in range(1, s.attempts + 1):
@@ -175,18 +203,30 @@ class Paster:
             normal = bary @ mesh.vertex_normals[corners]
             if np.linalg.norm(normal) < 1e-9:
                 normal = mesh.face_normals[f]
-            w = rng.uniform(*s.w)
+            if fields is not None:
+                # a condition has a physical size: the camera distance follows from it
+                grid = fields.extent_mm / 1000.0 * unit
+                w = grid / FIELD_FILL / (2 * half_tan)
+                threshold = s.max_depth_change * float(np.clip(grid / 0.1, 0.25, 4.0))
+            else:
+                w = rng.uniform(*s.w)
+                threshold = s.max_depth_change
             cam = Camera.from_surface(point, normal, w, fov_deg=s.fov_deg,
                                       width=s.view_size, height=s.view_size)
             flip_h, flip_v = bool(rng.random() < 0.5), bool(rng.random() < 0.5)
             angle = float(rng.uniform(0, 360))
-            extent = rng.uniform(*s.size) * s.view_size
-            # enlarge False: as the original, which shrinks lesions to fit but never
-            # enlarges them, a lesion keeps at least its source's resolution
-            affine, scale = compose_lesion(lesion, s.view_size, extent, flip_h, flip_v, angle,
-                                           max_scale=None if s.enlarge else 1.0)
-            a_x, a_s = warp_lesion(lesion, affine, s.view_size)
-            mask = a_s > 0.5
+            if fields is not None:
+                affine, scale = compose_grid(fields.size, s.view_size, FIELD_FILL * s.view_size,
+                                             flip_h, flip_v, angle)
+                mask = cv2.warpAffine(fields.mask.astype(np.float32), affine, (s.view_size,) * 2,
+                                      flags=cv2.INTER_LINEAR, borderValue=0) > 0.5
+            else:
+                extent = rng.uniform(*s.size) * s.view_size
+                # enlarge False: as the original, which shrinks lesions to fit but never
+                # enlarges them, a lesion keeps at least its source's resolution
+                affine, scale = compose_lesion(lesion, s.view_size, extent, flip_h, flip_v, angle,
+                                               max_scale=None if s.enlarge else 1.0)
+                mask = warp_lesion(lesion, affine, s.view_size)[1] > 0.5
             if mask.sum() < 3:
                 reasons["lesion too small"] = reasons.get("lesion too small", 0) + 1
                 continue
@@ -197,11 +237,14 @@ class Paster:
             c = depth_change(out, out["nonskin"], out["instances"], dilated, w)
             if dilated[0].any() or dilated[-1].any() or dilated[:, 0].any() or dilated[:, -1].any():
                 c = math.inf  # lesion does not fit in the view: its edge would be unchecked
-            if c > s.max_depth_change:
+            if c > threshold:
                 key = "off body / non-skin / overlap / depth change"
                 reasons[key] = reasons.get(key, 0) + 1
                 continue
-            n = self._paste(cam, out, affine, lesion, mask, dilated, k)
+            if fields is not None:
+                n, ids = self._paste_fields(cam, out, affine, fields, k)
+            else:
+                n, ids = self._paste(cam, out, affine, lesion, mask, dilated, k), [k]
             if n is None:
                 reasons["dilated overlap"] = reasons.get("dilated overlap", 0) + 1
                 continue
@@ -209,31 +252,30 @@ class Paster:
                 reasons["no texel visible"] = reasons.get("no texel visible", 0) + 1
                 continue
             rows, cols = np.nonzero(mask)
-            t_rows, t_cols = np.nonzero(self.result.instances == k)
+            t_rows, t_cols = np.nonzero(np.isin(self.result.instances, ids))
             p = Placement(k, lesion.id, _jsonable(lesion.meta), cam.to_dict(), flip_h, flip_v, angle,
                           float(scale), float(c), attempt,
                           [int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1],
                           [int(t_cols.min()), int(t_rows.min()), int(t_cols.max()) + 1, int(t_rows.max()) + 1],
-                          int(n))
+                          int(n), kind="image" if fields is None else "fields",
+                          instance_ids=[int(i) for i in ids], affine=affine.tolist())
             self.result.placements.append(p)
             return p
         log.warning("%s: lesion %s not placed after %d attempts (%s)", mesh.name, lesion.id,
                     s.attempts, ", ".join(f"{v}x {k_}" for k_, v in reasons.items()))
         return None
 
-    def _paste(self, cam, out, affine, lesion, mask, dilated, k) -> int | None:
-        """Pull lesion pixels into texels seen by this view; returns texels written, or
-        None when (overlap "dilated") the dilated texels touch an earlier lesion's."""
-        tx, res = self.tx, self.result
+    def _visible_texels(self, cam, out):
+        """Texels near the look-at point that the placement view sees: their indices into
+        the texel geometry, view pixel positions and visibility."""
+        tx = self.tx
         eye = np.asarray(cam.eye)
         target = np.asarray(cam.target)
         w = float(np.linalg.norm(target - eye))
         radius = (w + self.s.max_depth_change) * math.tan(math.radians(cam.fov_deg) / 2) * 1.5 + 1e-3
         near = np.nonzero(np.sum((tx.points - target) ** 2, axis=1) < radius ** 2)[0]
-        if len(near) == 0:
-            return 0
         pts = tx.points[near]
-        px = cam.project(pts)
+        px = cam.project(pts) if len(near) else np.zeros((0, 2))
         size = cam.width
         inside = (px[:, 0] >= 0) & (px[:, 0] < size) & (px[:, 1] >= 0) & (px[:, 1] < size)
         ix = np.clip(px[:, 0].astype(int), 0, size - 1)
@@ -242,7 +284,48 @@ class Paster:
         z = (pts - eye) @ forward
         rendered = out["depth"][iy, ix]
         facing = ((eye - pts) * tx.normals[near]).sum(1) > 0
-        visible = inside & facing & (np.abs(z - rendered) <= 0.01 * w + 1e-4)
+        return near, px, inside & facing & (np.abs(z - rendered) <= 0.01 * w + 1e-4)
+
+    def _paste_fields(self, cam, out, affine, fields, k):
+        """Apply a procedural condition to the skin of the texels the view sees, through
+        the inverse of ``affine`` into its grid; returns (lesion texels, instance ids)."""
+        tx, res = self.tx, self.result
+        near, px, visible = self._visible_texels(cam, out)
+        inv = cv2.invertAffineTransform(affine)
+        grid = np.c_[px - 0.5, np.ones(len(px))] @ inv.T          # (col, row), pixel centres at 0
+        at = np.stack([grid[:, 1] + 0.5, grid[:, 0] + 0.5], 1)      # (row, col), centres at +0.5
+        from ..assets.morphology import apply_to_skin
+        infl = sample_bilinear(fields.influence, grid[:, 0], grid[:, 1], cv2.BORDER_REPLICATE)
+        touched = visible & (infl > 1e-3)
+        if not touched.any():
+            return 0, []
+        r, c = tx.rows[near], tx.cols[near]
+        rt, ct = r[touched], c[touched]
+        colours = apply_to_skin(fields, res.pasted[rt, ct], at=at[touched])
+        res.pasted[rt, ct] = colours
+        res.dilated[rt, ct] = colours
+        gi = np.clip(np.floor(at[:, 0]).astype(np.int64), 0, fields.size - 1)
+        gj = np.clip(np.floor(at[:, 1]).astype(np.int64), 0, fields.size - 1)
+        local = np.where(visible, fields.instances[gi, gj], 0).astype(np.int64)
+        # every lesion of the condition keeps an id, also one too small for a texel
+        # (the decal still shows and labels it)
+        ids = list(range(k, k + int(fields.instances.max())))
+        res.instances[r[local > 0], c[local > 0]] = (local[local > 0] + k - 1).astype(np.uint16)
+        for i in np.unique(local[local > 0]) + k - 1:
+            _spill_into_gutters(res, tx.covered, int(i))
+        self.r.invalidate(res.instances)
+        if self.dilated_ids is not None:
+            self.dilated_ids[rt, ct] = k
+            self.r.invalidate(self.dilated_ids)
+        return int((local > 0).sum()), ids
+
+    def _paste(self, cam, out, affine, lesion, mask, dilated, k) -> int | None:
+        """Pull lesion pixels into texels seen by this view; returns texels written, or
+        None when (overlap "dilated") the dilated texels touch an earlier lesion's."""
+        tx, res = self.tx, self.result
+        near, px, visible = self._visible_texels(cam, out)
+        if len(near) == 0:
+            return 0
         # bilinear mask values at the projected points (pixel centres at +0.5)
         m_val = sample_bilinear(mask.astype(np.float32), px[:, 0] - 0.5, px[:, 1] - 0.5)
         d_val = sample_bilinear(dilated.astype(np.float32), px[:, 0] - 0.5, px[:, 1] - 0.5)
@@ -267,18 +350,6 @@ class Paster:
             self.dilated_ids[box][res.instances[box] == k] = k  # and the gutters spilled into
             self.r.invalidate(self.dilated_ids)
         return int(in_lesion.sum())
-
-
-def sample_bilinear(img, x, y, border=cv2.BORDER_CONSTANT):
-    """img sampled at float pixel indices (x = column); one value per point.
-    cv2.remap needs maps under 32767 wide, hence the reshape into rows of 1024."""
-    n = len(x)
-    cols = 1024
-    pad = (-n) % cols
-    mx = np.pad(np.asarray(x, np.float32), (0, pad)).reshape(-1, cols)
-    my = np.pad(np.asarray(y, np.float32), (0, pad)).reshape(-1, cols)
-    out = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=border, borderValue=0)
-    return out.reshape((-1,) + img.shape[2:])[:n]
 
 
 def _spill_into_gutters(res: PastedTextures, covered, k, rings=2):

@@ -10,7 +10,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..camera import Camera
-from .paste import PastedTextures, sample_bilinear
+from ..sampling import sample_bilinear
+from .paste import PastedTextures
 
 
 def crop_box(placement, size, pad):
@@ -29,6 +30,8 @@ def poisson_blend(renderer, mesh, pasted: PastedTextures, texels, pad: int = 16)
     # and not the jump from lesion to body skin.
     Td = pasted.dilated.astype(np.float32) / 255
     for p in pasted.placements:
+        if p.kind == "fields":  # a procedural condition was made on the body's own skin
+            continue
         view = Camera.from_dict(p.camera)
         x0, y0, x1, y1 = crop_box(p, view.width, pad)
         cam = view.crop(x0, y0, x1 - x0, y1 - y0)
