@@ -50,6 +50,9 @@ class LesionsConfig:
     size: list = field(default_factory=lambda: [0.15, 0.4])  # lesion extent / view width
     min_size: int = 16                # lesion images with a shorter side (px) are rejected
     max_mask_fraction: float = 0.95   # masks covering more of their image are rejected
+    kinds: list = field(default_factory=list)  # procedural presets to use ([]: all)
+    resolution: int = 512             # grid cells per side of a procedural condition
+    decal_size: int = 1024            # pixels per side of each lesion's decal (0: none)
 
 
 @dataclass
@@ -153,8 +156,9 @@ class PhotoConfig:
 @dataclass
 class BackgroundsConfig:
     source: str = "procedural"
-    count: int = 16                   # procedural rooms to make
+    count: int = 16                   # procedural backgrounds to make
     blur: list = field(default_factory=lambda: [0.0, 3.0])
+    clinical: float = 0.0             # share of procedural backgrounds that are clinical backdrops
 
 
 @dataclass
@@ -307,6 +311,12 @@ def validate(cfg: Config, source="config"):
     le = cfg.lesions
     need(le.layout in ("fitz17k", "pairs"), "lesions.layout", le.layout, "must be 'fitz17k' or 'pairs'")
     need(le.per_body >= 0, "lesions.per_body", le.per_body, "must be >= 0")
+    from .assets.morphology import PRESETS
+    bad_kinds = [k for k in le.kinds if k not in PRESETS]
+    need(not bad_kinds, "lesions.kinds", le.kinds, f"must name presets from {sorted(PRESETS)}")
+    need(64 <= le.resolution <= 4096, "lesions.resolution", le.resolution, "must be in [64, 4096]")
+    need(le.decal_size == 0 or 64 <= le.decal_size <= 4096, "lesions.decal_size", le.decal_size,
+         "must be 0 (no decals) or in [64, 4096]")
     _range(le.size, "lesions.size", source, 0.01, 1.5)
     need(1 <= le.min_size <= 4096, "lesions.min_size", le.min_size, "must be in [1, 4096] pixels")
     need(0 < le.max_mask_fraction <= 1, "lesions.max_mask_fraction", le.max_mask_fraction,
@@ -384,5 +394,7 @@ def validate(cfg: Config, source="config"):
          "must be [0, 0] (no JPEG) or integers in [1, 100]")
     _range(cfg.backgrounds.blur, "backgrounds.blur", source, 0, 50)
     need(cfg.backgrounds.count >= 1, "backgrounds.count", cfg.backgrounds.count, "must be >= 1")
+    need(0 <= cfg.backgrounds.clinical <= 1, "backgrounds.clinical", cfg.backgrounds.clinical,
+         "must be in [0, 1]")
     bad = [o for o in cfg.outputs if o not in OUTPUTS]
     need(not bad and cfg.outputs, "outputs", cfg.outputs, f"must be a non-empty subset of {list(OUTPUTS)}")

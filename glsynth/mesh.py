@@ -45,13 +45,13 @@ class SkinSurface:
 class Mesh:
     """vertices (V,3) float, faces (F,3) int, uvs (T,2) float, face_uvs (F,3) int,
     texture HxWx3 uint8 (row 0 = top of the image, v = 1 at the top), plus optional
-    named extra textures (label maps) in ``textures`` and the skin shading's inputs in
-    ``skin`` (a SkinSurface).
+    named extra textures (label maps) in ``textures``, the skin shading's inputs in
+    ``skin`` (a SkinSurface) and lesion decals in ``decals``.
     """
 
     def __init__(self, vertices, faces, uvs=None, face_uvs=None, texture=None,
                  textures=None, vertex_labels=None, vertex_colors=None, name="mesh",
-                 require_texture=True, skin=None):
+                 require_texture=True, skin=None, decals=None):
         self.name = str(name)
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces)
@@ -96,6 +96,7 @@ class Mesh:
             self.texture = _as_rgb_texture(texture, self.name)
         self.textures = dict(textures or {})
         self.skin = skin
+        self.decals = decals   # pipeline.decals.Decals: lesions at their own resolution
         if skin is not None and skin.hair_coords is not None and \
                 np.shape(skin.hair_coords) != (len(self.faces), 3, 2):
             raise MeshError(f"{self.name}: hair_coords must be ({len(self.faces)}, 3, 2), "
@@ -209,7 +210,7 @@ class Mesh:
         args = dict(vertices=self.vertices, faces=self.faces, uvs=self.uvs,
                     face_uvs=self.face_uvs, texture=self.texture, textures=self.textures,
                     vertex_labels=self.vertex_labels, vertex_colors=self.vertex_colors,
-                    name=self.name, skin=self.skin)
+                    name=self.name, skin=self.skin, decals=self.decals)
         args.update(changes)
         return Mesh(**args)
 

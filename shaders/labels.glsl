@@ -30,6 +30,13 @@ uint fetch(usampler2D tex, bool per_corner, vec2 uv, int face, vec3 b) {
     return texelFetch(tex, clamp(texel, ivec2(0), size - 1), 0).r;
 }
 
+#ifdef DECAL_SLOT
+// Lesion decals give the ids of slot DECAL_SLOT wherever the region map assigns one:
+// lesion outlines at the decal's resolution (decal.glsl).
+#define DECAL_IDS_ONLY
+#include "decal.glsl"
+#endif
+
 uvec4 fetch_labels(vec2 uv, int face, vec3 b) {
     uvec4 labels = uvec4(0u);
     labels.x = fetch(u_labels0, 0 >= LABEL_CORNERS_FROM, uv, face, b);
@@ -41,6 +48,10 @@ uvec4 fetch_labels(vec2 uv, int face, vec3 b) {
 #endif
 #if LABEL_MAPS > 3
     labels.w = fetch(u_labels3, 3 >= LABEL_CORNERS_FROM, uv, face, b);
+#endif
+#ifdef DECAL_SLOT
+    int layer = decal_layer(uv);
+    if (layer >= 0) labels[DECAL_SLOT] = decal_id(layer, g_world * b);
 #endif
     return labels;
 }

@@ -20,6 +20,9 @@
 #ifndef SHADOWS
 #define SHADOWS 0
 #endif
+#ifndef DECALS
+#define DECALS 0
+#endif
 uniform sampler2D u_texture;
 uniform vec3 u_eye;
 uniform vec3 u_light_pos[NUM_LIGHTS];
@@ -36,6 +39,10 @@ out vec4 out_color;
 #if SHADOWS
 #include "shadow.glsl"
 #endif
+#if DECALS
+uniform float u_pixel_angle;   // footprint of a pixel per unit of depth
+#include "decal.glsl"
+#endif
 
 void main() {
     vec3 b = surface_bary();
@@ -47,6 +54,13 @@ void main() {
     vec3 n = nlen > 0.0 ? normal / nlen : vec3(0.0);
     vec3 to_eye = u_eye - world;
     vec3 view_dir = to_eye / max(length(to_eye), 1e-20);
+#if DECALS
+    vec4 daux;
+    vec3 dax, day;
+    float footprint = dot(g_depth, b) * u_pixel_angle / max(abs(dot(n, view_dir)), 0.2);
+    vec4 dcol = decal_colour(uv, world, footprint, daux, dax, day);
+    texel = mix(texel, dcol.rgb, dcol.a);
+#endif
     vec3 light_sum = vec3(0.0);
     vec3 spec_sum = vec3(0.0);
     for (int i = 0; i < NUM_LIGHTS; ++i) {

@@ -27,6 +27,9 @@
 #ifndef HAIR
 #define HAIR 0
 #endif
+#ifndef DECALS
+#define DECALS 0
+#endif
 #define PI 3.14159265
 #define F0 0.028
 #define HAIR_RATIO 1.618   // scale of the second hair layer
@@ -38,12 +41,12 @@ uniform vec3 u_light_diffuse[NUM_LIGHTS];
 uniform float u_roughness;         // GGX roughness of dry skin (alpha = roughness^2)
 uniform float u_oil;               // 0..1, scales the oiliness map
 uniform float u_wrap;              // Material.wrap
+uniform float u_pixel_angle;       // footprint of a pixel per unit of depth
 #if DETAIL
 uniform sampler2D u_params;        // R relief, G pores, B hair density, A oiliness
 uniform sampler2D u_relief;        // relief tile (half floats): RG slope, B albedo change, A pore
 uniform float u_relief_period;     // scene units per relief tile
 uniform float u_relief_size;       // texels per relief tile
-uniform float u_pixel_angle;       // footprint of a pixel per unit of depth
 uniform float u_relief_amount;     // scales the relief (Material.relief)
 uniform float u_pore_mean;         // mean of the relief tile's pore channel
 #endif
@@ -61,6 +64,11 @@ out vec4 out_color;
 
 #if SHADOWS
 #include "shadow.glsl"
+#endif
+#if DECALS
+#include "decal.glsl"
+#define DECAL_SLOPE 2.0     // decals.SLOPE_RANGE
+#define DECAL_DETAIL 2.0    // decals.DETAIL_RANGE
 #endif
 
 vec3 to_linear(vec3 c) {
@@ -86,11 +94,23 @@ void main() {
     float oil = 0.5 * u_oil;
     float terminal = 0.0, vellus = 0.0, hair_shadow = 0.0;
     vec3 fibre = vec3(0.0);
-#if DETAIL
-    vec4 prm = texture(u_params, vec2(uv.x, 1.0 - uv.y)) * tex.a;
-    oil = prm.a * u_oil;
     // footprint of this pixel on the surface (isotropic, as GL's own LOD)
     float footprint = dot(g_depth, b) * u_pixel_angle / max(abs(dot(ng, v)), 0.2);
+    float detail_weight = tex.a, gloss = 0.0;
+    vec3 grad = vec3(0.0);         // height gradient of relief and lesions, world units
+#if DECALS
+    vec4 daux;
+    vec3 dax, day;
+    vec4 dcol = decal_colour(uv, world, footprint, daux, dax, day);
+    albedo = mix(albedo, to_linear(dcol.rgb), dcol.a);
+    detail_weight = mix(detail_weight, daux.a * DECAL_DETAIL, dcol.a);
+    gloss = daux.b * dcol.a;
+    vec2 dslope = (daux.xy * 255.0 - 128.0) / 127.0 * DECAL_SLOPE * dcol.a;
+    grad += dslope.x * dax + dslope.y * day;
+#endif
+#if DETAIL
+    vec4 prm = texture(u_params, vec2(uv.x, 1.0 - uv.y)) * min(detail_weight, 1.0);
+    oil = prm.a * u_oil;
     float lod = log2(max(footprint / u_relief_period * u_relief_size, 1e-6));
     vec3 w = ng * ng;
     w *= w;
@@ -101,11 +121,9 @@ void main() {
     vec2 sx = px.rg, sy = py.rg, sz = pz.rg;
     // the height gradient of each projection in world axes, blended, then kept in the
     // tangent plane (the surface gradient)
-    vec3 grad = w.x * vec3(0.0, sx.y, sx.x) + w.y * vec3(sy.x, 0.0, sy.y) + w.z * vec3(sz.x, sz.y, 0.0);
-    grad -= ng * dot(ng, grad);
-    float relief = prm.r * u_relief_amount;
-    vec3 nd = ng - relief * grad;
-    n = nd / max(length(nd), 1e-20);
+    // lichenified skin (detail weight above 1) deepens the relief
+    float relief = prm.r * u_relief_amount * max(detail_weight, 1.0);
+    grad += relief * (w.x * vec3(0.0, sx.y, sx.x) + w.y * vec3(sy.x, 0.0, sy.y) + w.z * vec3(sz.x, sz.y, 0.0));
     // albedo: furrow darkening and melanin speckle (mean 0 over the tile), pores (their
     // mean darkening over the tile, u_pore_mean, given back so far views keep the colour)
     float tone = dot(w, vec3(px.b, py.b, pz.b));
@@ -145,7 +163,10 @@ void main() {
     fibre = fibre_dir;
 #endif
 #endif
-    float roughness = mix(u_roughness, 0.75 * u_roughness, oil);
+    grad -= ng * dot(ng, grad);     // the surface gradient
+    vec3 nd = ng - grad;
+    n = nd / max(length(nd), 1e-20);
+    float roughness = mix(mix(u_roughness, 0.75 * u_roughness, oil), 0.12, gloss);
     float alpha = roughness * roughness;
     float a2 = alpha * alpha;
     float k = 0.5 * alpha;
@@ -177,7 +198,7 @@ void main() {
             float G = nl_detail / (nl_detail * (1.0 - k) + k) * nv / (nv * (1.0 - k) + k);
             // clamped: with the light at the eye (a flash) v.h rounds to just above 1
             float F = F0 + (1.0 - F0) * pow(clamp(1.0 - dot(v, h), 0.0, 1.0), 5.0);
-            spec_sum += vis * shade * u_light_diffuse[i] * (PI * D * F * G / (4.0 * nv) * (1.0 + 0.4 * oil));
+            spec_sum += vis * shade * u_light_diffuse[i] * (PI * D * F * G / (4.0 * nv) * (1.0 + 0.4 * oil + gloss));
         }
 #if HAIR
         // hair fibres: diffuse by the sine of the light to the fibre, a shifted

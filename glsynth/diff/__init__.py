@@ -131,18 +131,25 @@ F0_SKIN = 0.028   # Fresnel reflectance of skin at normal incidence (refractive 
 WRAP_RGB = (1.0, 0.6, 0.45)   # how far each channel's diffuse wraps, relative to Material.wrap
 
 
-def skin_terms(position, normal, eye, lights, material):
+SOFT_RGB = (0.6, 0.3, 0.15)   # how much of the geometric normal each channel's diffuse sees
+
+
+def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=None):
     """The skin reflectance of ``shaders/skin.frag`` without micro-detail, in linear
     light: ``colour = albedo * light + specular`` (then sRGB-encoded by the caller).
     Diffuse: wrap lighting, wider in red than in blue; specular: GGX with Smith masking
     and Schlick's Fresnel, each light's ``diffuse`` colour its intensity for both; the
-    oiliness is ``material.oil / 2`` (the map's value of a mesh without a SkinSurface
-    is the shader's business; without detail the shader uses the same)."""
+    oiliness is ``material.oil / 2`` (as the shader's without detail); ``gloss``
+    (B, H, W, 1) sharpens and raises the specular lobe (decals of moist lesions). With a
+    relief-perturbed ``normal``, ``geometric`` is the surface's own: the diffuse term
+    of red sees mostly it, blue mostly the relief (light scattered under the skin)."""
     dt, dev = position.dtype, position.device
     n = F.normalize(normal, dim=-1, eps=1e-30)
     v = F.normalize(eye[:, None, None, :] - position, dim=-1, eps=1e-20)
     oil = 0.5 * material.oil
+    gloss = torch.zeros_like(position[..., :1]) if gloss is None else gloss
     rough = material.roughness * (1 - 0.25 * oil)
+    rough = rough + (0.12 - rough) * gloss              # moist or tense lesions (decals)
     a2 = rough ** 4
     k = 0.5 * rough ** 2
     nv = (n * v).sum(-1, keepdim=True).clamp(min=1e-4)
@@ -153,7 +160,11 @@ def skin_terms(position, normal, eye, lights, material):
         lp = torch.tensor(light.position, dtype=dt, device=dev)
         l = F.normalize(lp - position, dim=-1, eps=1e-20)
         nl = (n * l).sum(-1, keepdim=True)
-        diffuse = ((nl + wrap) / (1 + wrap)).clamp(min=0)
+        nl_rgb = nl
+        if geometric is not None:
+            ng = F.normalize(geometric, dim=-1, eps=1e-30)
+            nl_rgb = nl + ((ng * l).sum(-1, keepdim=True) - nl) * torch.tensor(SOFT_RGB, dtype=dt, device=dev)
+        diffuse = ((nl_rgb + wrap) / (1 + wrap)).clamp(min=0)
         e = torch.tensor(light.diffuse, dtype=dt, device=dev)
         light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) + e * diffuse
         h = F.normalize(l + v, dim=-1, eps=1e-20)
@@ -162,7 +173,7 @@ def skin_terms(position, normal, eye, lights, material):
         D = a2 / (math.pi * d * d)
         G = nl / (nl * (1 - k) + k) * nv / (nv * (1 - k) + k)
         Fr = F0_SKIN + (1 - F0_SKIN) * (1 - (v * h).sum(-1, keepdim=True)).clamp(0, 1) ** 5
-        spec = e * (math.pi * D * Fr * G / (4 * nv) * (1 + 0.4 * oil))
+        spec = e * (math.pi * D * Fr * G / (4 * nv) * (1 + 0.4 * oil + gloss))
         spec_sum = spec_sum + torch.where(nl > 0, spec, torch.zeros_like(spec))
     return light_sum, spec_sum
 
@@ -188,18 +199,116 @@ def shade(outs, mesh, tex, cameras, lights=None, material=None):
     uv, pos, nrm = surface(gbuf, mesh, device=tex.device, dtype=tex.dtype)
     texel = texture(tex, uv)[..., :3]
     material = material or Material()
+    decal, alpha, aux, geometric = None, None, None, None
+    if getattr(mesh, "decals", None) is not None:
+        geometric = nrm
+        decal, alpha, aux, nrm = decal_lookup(mesh.decals, uv, pos, nrm, cams, gbuf.mask,
+                                              relief=material.model == "skin")
     if material.model == "skin":
         eye = torch.tensor(np.array([c.eye for c in cams]), device=pos.device, dtype=pos.dtype)
         lights = check_lights(lights) if lights is not None else None
-        terms = [skin_terms(pos[i:i + 1], nrm[i:i + 1], eye[i:i + 1],
-                            lights or [PointLight(c.eye)], material) for i, c in enumerate(cams)]
+        gloss = None if aux is None else aux[..., 2:3] * alpha
+        terms = [skin_terms(pos[i:i + 1], nrm[i:i + 1], eye[i:i + 1], lights or [PointLight(c.eye)],
+                            material, None if gloss is None else gloss[i:i + 1],
+                            None if geometric is None else geometric[i:i + 1])
+                 for i, c in enumerate(cams)]
         light, spec = torch.cat([t[0] for t in terms]), torch.cat([t[1] for t in terms])
-        img = linear_to_srgb((srgb_to_linear(texel) * light + spec).clamp(0, 1))
+        albedo = srgb_to_linear(texel)
+        if decal is not None:
+            albedo = albedo + (srgb_to_linear(decal) - albedo) * alpha
+        img = linear_to_srgb((albedo * light + spec).clamp(0, 1))
     else:
+        if decal is not None:
+            texel = texel + (decal - texel) * alpha
         light, spec = lighting(pos, nrm, cams, lights, material)
         img = (texel * light + spec).clamp(0, 1)
     img = img * gbuf.mask[..., None].to(tex.dtype)
     return img[0] if single else img
+
+
+DECAL_SLOPE = 2.0   # pipeline.decals.SLOPE_RANGE
+
+
+def _decal_pyramid(decals, name, device, dtype):
+    """Mip levels (N x C x h x w tensors, 0..1) of the decal layers, each the 2x2 mean of
+    the one before (GL's mipmaps of the half-float decal textures); kept on the Decals
+    object."""
+    cache = decals.__dict__.setdefault("_torch_pyramids", {})
+    key = (name, str(device), dtype)
+    if key not in cache:
+        arr = torch.as_tensor(getattr(decals, name), device=device).to(dtype) / 255.0
+        levels = [arr.permute(0, 3, 1, 2)]
+        while levels[-1].shape[-1] > 1:
+            levels.append(F.avg_pool2d(levels[-1], 2))
+        cache[key] = levels
+    return cache[key]
+
+
+def _sample_lod(levels, layer, st, lod):
+    """Trilinear sample of one decal layer at st (N x 2, 0..1) and level of detail lod
+    (N,), as GL's LINEAR_MIPMAP_LINEAR with an explicit level (textureLod)."""
+    top = len(levels) - 1
+    lod = lod.clamp(0, top)
+    lo = lod.floor().long().clamp(max=top)
+    frac = (lod - lo).unsqueeze(-1)
+    grid = (st * 2 - 1).view(1, 1, -1, 2)
+    out = torch.zeros(len(st), levels[0].shape[1], dtype=st.dtype, device=st.device)
+    for lv in torch.unique(lo).tolist():
+        sel = lo == lv
+        g = grid[:, :, sel]
+        a = F.grid_sample(levels[lv][layer:layer + 1], g, mode="bilinear", padding_mode="border",
+                          align_corners=False)[0, :, 0].T
+        b = F.grid_sample(levels[min(lv + 1, top)][layer:layer + 1], g, mode="bilinear",
+                          padding_mode="border", align_corners=False)[0, :, 0].T
+        out[sel] = a + (b - a) * frac[sel]
+    return out
+
+
+def decal_lookup(decals, uv, pos, nrm, cams, mask, relief=True):
+    """The lesion decals (pipeline.decals.Decals) at each pixel, as shaders/decal.glsl
+    samples them: colour (B,H,W,3) sRGB, coverage (B,H,W,1), aux (B,H,W,4) and, with
+    ``relief``, the normal perturbed by the decal's relief slope (otherwise ``nrm``)."""
+    dt, dev = pos.dtype, pos.device
+    b, h, w = uv.shape[:3]
+    colour = torch.zeros(b, h, w, 3, dtype=dt, device=dev)
+    alpha = torch.zeros(b, h, w, 1, dtype=dt, device=dev)
+    aux = torch.zeros(b, h, w, 4, dtype=dt, device=dev)
+    aux[..., :2] = 128 / 255
+    region = torch.as_tensor(decals.region.astype(np.int64), device=dev)
+    rh, rw = region.shape
+    col = (uv[..., 0] * rw).floor().long().clamp(0, rw - 1)
+    row = ((1 - uv[..., 1]) * rh).floor().long().clamp(0, rh - 1)
+    layer = torch.where(mask, region[row, col] - 1, torch.full_like(row, -1))
+    cpy = {name: _decal_pyramid(decals, name, dev, dt) for name in ("colour", "aux")}
+    n = F.normalize(nrm, dim=-1, eps=1e-30)
+    grad = torch.zeros_like(pos)
+    for bi, cam in enumerate(cams):
+        eye = torch.tensor(cam.eye, dtype=dt, device=dev)
+        fwd = F.normalize(torch.tensor(np.subtract(cam.target, cam.eye), dtype=dt, device=dev), dim=0)
+        pixel_angle = 1.0 / float(cam.intrinsics()[1, 1])
+        for k in torch.unique(layer[bi]).tolist():
+            if k < 0:
+                continue
+            sel = layer[bi] == k
+            p = pos[bi][sel]
+            proj = torch.tensor(decals.projection[k], dtype=dt, device=dev)
+            q = torch.cat([p, torch.ones_like(p[:, :1])], 1) @ proj.T
+            st = q[:, :2] / q[:, 2:3] / decals.size
+            v = F.normalize(eye - p, dim=-1, eps=1e-20)
+            depth = (p - eye) @ fwd
+            foot = depth * pixel_angle / (n[bi][sel] * v).sum(-1).abs().clamp(min=0.2)
+            lod = torch.log2((foot / float(decals.texel[k])).clamp(min=1e-6))
+            inside = ((st >= 0) & (st <= 1)).all(-1, keepdim=True).to(dt)
+            c = _sample_lod(cpy["colour"], k, st, lod) * inside
+            a = _sample_lod(cpy["aux"], k, st, lod)
+            colour[bi][sel], alpha[bi][sel], aux[bi][sel] = c[:, :3], c[:, 3:4], a
+            slope = (a[:, :2] * 255 - 128) / 127 * DECAL_SLOPE * c[:, 3:4]
+            axes = torch.tensor(decals.axes[k], dtype=dt, device=dev)
+            grad[bi][sel] = slope[:, :1] * axes[0] + slope[:, 1:2] * axes[1]
+    if relief:
+        grad = grad - n * (n * grad).sum(-1, keepdim=True)
+        nrm = n - grad
+    return colour, alpha, aux, nrm
 
 
 def surface(gbuf: GBuffer, mesh, device=None, dtype=torch.float32):

@@ -29,6 +29,9 @@ MAX_LABEL_MAPS = 4  # one four-channel uint16 target
 # texture units: 0 colour, 1 shadow map, 2-5 label maps, then the skin shading's
 # parameter map, relief tile and hair tile
 SKIN_UNITS = (6, 7, 8)
+# lesion decals (shaders/decal.glsl): region map, per-decal info, colour, aux, ids
+DECAL_UNITS = {"u_decal_region": 9, "u_decal_info": 10, "u_decal_colour": 11, "u_decal_aux": 12,
+               "u_decal_ids": 13}
 MAX_SUPERSAMPLE = 8
 
 
@@ -52,6 +55,46 @@ def _rgba(mesh) -> np.ndarray:
     out = np.empty(tex.shape[:2] + (4,), np.uint8)
     out[..., :3] = tex
     out[..., 3] = 255 if weight is None else weight
+    return out
+
+
+def _set_units(prog, units: dict):
+    """Point the program's samplers at their texture units (those it has)."""
+    for name, unit in units.items():
+        if name in prog:
+            prog[name] = unit
+
+
+def _set_uniforms(prog, values: dict):
+    """Set the uniforms the program has (one that cannot change the result may be
+    compiled out)."""
+    for name, value in values.items():
+        if name in prog:
+            prog[name].value = value
+
+
+def _upload_decals(ctx, decals) -> dict:
+    """GL textures of a pipeline.decals.Decals: keyed by the sampler names of decal.glsl."""
+    n, size = len(decals), decals.size
+    info = np.zeros((n, 5, 4), np.float32)
+    info[:, :3] = decals.projection
+    info[:, 3, :3], info[:, 4, :3] = decals.axes[:, 0], decals.axes[:, 1]
+    info[:, 3, 3] = decals.texel
+    region = np.ascontiguousarray(decals.region, np.uint16)
+    out = {"u_decal_region": ctx.texture((region.shape[1], region.shape[0]), 1, region, dtype="u2"),
+           "u_decal_info": ctx.texture((5, n), 4, info, dtype="f4"),
+           "u_decal_ids": ctx.texture_array((size, size, n), 1, np.ascontiguousarray(decals.instances),
+                                            dtype="u2")}
+    for name in ("u_decal_region", "u_decal_info", "u_decal_ids"):
+        out[name].filter = (moderngl.NEAREST, moderngl.NEAREST)
+    for name, arr in (("u_decal_colour", decals.colour), ("u_decal_aux", decals.aux)):
+        # half floats: llvmpipe filters 8-bit textures with 8-bit weights (~2/255 off torch)
+        tex = ctx.texture_array((size, size, n), 4, _half_float_texels(arr.reshape(n * size, size, 4)),
+                                dtype="f2")
+        tex.build_mipmaps()
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        tex.repeat_x = tex.repeat_y = False
+        out[name] = tex
     return out
 
 
@@ -151,6 +194,8 @@ class _MeshOnGPU:
             self.texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self.texture.repeat_x = self.texture.repeat_y = False  # clamp, like grid_sample 'border'
         self.hair_vbo = ctx.buffer(staged["hair"]) if staged.get("hair") else None
+        self.decals = _upload_decals(ctx, mesh.decals) if getattr(mesh, "decals", None) is not None else None
+        self.decal_size = float(mesh.decals.size) if self.decals is not None else 0.0
         self.params = None
         if mesh.skin is not None:
             prm = np.ascontiguousarray(mesh.skin.params, np.uint8)
@@ -212,9 +257,14 @@ class _MeshOnGPU:
         for vao in self.vaos.values():
             vao.release()
         self.vbo.release()
-        for obj in (self.texture, self.hair_vbo, self.params):
+        for obj in (self.texture, self.hair_vbo, self.params, *(self.decals or {}).values()):
             if obj is not None:
                 obj.release()
+
+    def bind_decals(self):
+        """Bind the decal textures to their units (DECAL_UNITS)."""
+        for name, unit in DECAL_UNITS.items():
+            self.decals[name].use(unit)
 
 
 class Renderer:
@@ -267,49 +317,48 @@ class Renderer:
         """Name of the program for a draw of ``kind`` (a G-buffer kind, or 'labels' for
         the labels alone) with ``label_layout`` = (maps, first per-corner slot) from
         ``_bind_labels`` (see labels.glsl), compiled on first use."""
-        name = kind if label_layout is None else f"{kind}:{label_layout[0]}/{label_layout[1]}"
+        name = kind if label_layout is None else f"{kind}:" + "/".join(map(str, label_layout))
         if name not in self.programs:
             layout = {} if label_layout is None else dict(zip(("LABEL_MAPS", "LABEL_CORNERS_FROM"),
-                                                              label_layout))
+                                                              label_layout[:2]))
+            if label_layout is not None and label_layout[2] >= 0:
+                layout["DECAL_SLOT"] = label_layout[2]
             if kind == "labels":
                 frag = with_defines(shader_source("labels.frag"), **layout)
             else:
                 frag = with_defines(shader_source("gbuffer.frag"), LABELS=int("+labels" in kind),
                                     BARY_UV=int(not kind.endswith("-lean")), **layout)
             prog = self.ctx.program(vertex_shader=shader_source("mesh.vert"), fragment_shader=frag)
-            for i in range(MAX_LABEL_MAPS):  # units 0, 1: colour, shadow map
-                if f"u_labels{i}" in prog:
-                    prog[f"u_labels{i}"] = i + 2
+            _set_units(prog, {**{f"u_labels{i}": i + 2 for i in range(MAX_LABEL_MAPS)}, **DECAL_UNITS})
             self.programs[name] = prog
         return name
 
-    def _phong(self, n_lights: int, shadows: bool) -> str:
-        """Name of the shading program for this light count and shadow setting, compiled
-        on first use (see phong.frag for why the count is a compile-time constant)."""
-        name = f"rgb{n_lights}{'s' if shadows else ''}"
+    def _phong(self, n_lights: int, shadows: bool, decals=False) -> str:
+        """Name of the shading program for this light count, shadow and decal setting,
+        compiled on first use (see phong.frag for why the count is a compile-time
+        constant)."""
+        name = f"rgb{n_lights}{'s' if shadows else ''}{'d' if decals else ''}"
         if name not in self.programs:
-            frag = with_defines(shader_source("phong.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows)
+            frag = with_defines(shader_source("phong.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows,
+                                DECALS=decals)
             vert = with_defines(shader_source("mesh.vert"), SHADOWS=shadows)
             prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
-            if shadows:
-                prog["u_shadow_map"] = 1
+            _set_units(prog, {"u_shadow_map": 1, **DECAL_UNITS})
             self.programs[name] = prog
         return name
 
-    def _skin(self, n_lights: int, shadows: bool, detail: bool, hair: bool) -> tuple:
+    def _skin(self, n_lights: int, shadows: bool, detail: bool, hair: bool, decals=False) -> tuple:
         """Key of the skin shading program for these settings (skin.frag), compiled on
         first use."""
-        key = ("skin", n_lights, shadows, detail, hair)
+        key = ("skin", n_lights, shadows, detail, hair, decals)
         if key not in self.programs:
             frag = with_defines(shader_source("skin.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows,
-                                DETAIL=detail, HAIR=hair)
+                                DETAIL=detail, HAIR=hair, DECALS=decals)
             vert = shader_source("mesh.vert")
             vert = with_defines(vert, SHADOWS=shadows, **({"HAIR_COORDS": 1} if hair else {}))
             prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
-            for name, unit in (("u_shadow_map", 1), ("u_params", SKIN_UNITS[0]),
-                               ("u_relief", SKIN_UNITS[1]), ("u_hair", SKIN_UNITS[2])):
-                if name in prog:
-                    prog[name] = unit
+            _set_units(prog, {"u_shadow_map": 1, "u_params": SKIN_UNITS[0], "u_relief": SKIN_UNITS[1],
+                              "u_hair": SKIN_UNITS[2], **DECAL_UNITS})
             self.programs[key] = prog
         return key
 
@@ -452,7 +501,7 @@ class Renderer:
     # ---- rendering ----------------------------------------------------------------
     def render(self, mesh: Mesh, camera: Camera, passes=("gbuffer", "rgb"), lights=None,
                material=None, label_texture=None, label_textures=None, supersample=1,
-               shadows=False, buffers=None, vertex_labels=None, multisample=0):
+               shadows=False, buffers=None, vertex_labels=None, multisample=0, decal_labels=None):
         """Render ``mesh`` from ``camera``.
 
         passes: any of 'gbuffer', 'rgb', 'labels'. Returns a dict of numpy arrays
@@ -480,17 +529,21 @@ class Renderer:
         llvmpipe: ~25 vs ~33 ms; see docs/accuracy.md). Both may be combined.
         ``buffers``: the names above to read back (default: all that the passes make);
         the others are drawn but never copied to memory (face_id is always read with the
-        G-buffer, rgb and alpha come together).
+        G-buffer, rgb and alpha come together). ``decal_labels``: the name of the label
+        map (of ``label_textures``) whose ids the mesh's lesion decals give wherever
+        they cover the surface (``Mesh.decals``; outlines at the decals' resolution).
+        A mesh with decals shows them in the rgb pass.
         """
         # Another library (pyrender, a GUI toolkit) may have made its own context
         # current since the last call: always draw in ours.
         with self.ctx:
             return self._render(mesh, camera, tuple(passes), lights, material, label_texture,
                                 label_textures, supersample, shadows, buffers, vertex_labels,
-                                multisample)
+                                multisample, decal_labels)
 
     def _render(self, mesh, camera, passes, lights, material, label_texture, label_textures,
-                supersample, shadows=False, buffers=None, vertex_labels=None, multisample=0):
+                supersample, shadows=False, buffers=None, vertex_labels=None, multisample=0,
+                decal_labels=None):
         unknown = set(passes) - set(PASSES)
         if unknown:
             raise ValueError(f"unknown pass(es) {sorted(unknown)}; choose from {PASSES}")
@@ -504,7 +557,8 @@ class Renderer:
         ctx.disable(moderngl.BLEND)
         labels = layout = None
         if "labels" in passes:
-            labels, layout = self._bind_labels(gpu, mesh, label_texture, label_textures, vertex_labels)
+            labels, layout = self._bind_labels(gpu, mesh, label_texture, label_textures, vertex_labels,
+                                               decal_labels)
         if want is not None:
             known = set(GBUFFER_LAYERS) | {"rgb", "alpha", "rgba8"} | set(labels or ())
             if want - known:
@@ -563,11 +617,16 @@ class Renderer:
         material = material or Material()
         target = np.asarray(camera.target)
         shadows = bool(shadows and np.linalg.norm(np.asarray(lights[0].position) - target) >= 1e-9)
+        decals = gpu.decals is not None
         if material.model == "skin":
             detail = material.detail
-            name = self._skin(len(lights), shadows, detail, detail and gpu.hair_vbo is not None)
+            name = self._skin(len(lights), shadows, detail, detail and gpu.hair_vbo is not None, decals)
         else:
-            name = self._phong(len(lights), shadows)
+            name = self._phong(len(lights), shadows, decals)
+        if decals:
+            gpu.bind_decals()
+            _set_uniforms(self.programs[name], {"u_decal_size": gpu.decal_size,
+                                                "u_pixel_angle": 1.0 / float(camera.intrinsics()[1, 1])})
         if shadows:
             self._shadow_map(gpu, mesh, camera, lights[0], self.programs[name])
         self._set_shading(self.programs[name], gpu, camera, lights, material)
@@ -591,9 +650,7 @@ class Renderer:
                           u_hair_size=float(t.hair.shape[0]), u_unit=unit)
             if mesh.skin is not None:
                 values["u_hair_rgb"] = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
-        for key, value in values.items():
-            if key in prog:  # a uniform that cannot change the result may be compiled out
-                prog[key].value = value
+        _set_uniforms(prog, values)
 
     def _shadow_map(self, gpu, mesh, camera, light, prog):
         """Render ``light``'s shadow map and point the shading program ``prog`` at it."""
@@ -648,7 +705,9 @@ class Renderer:
         fbo = self._fbo(kind, *size)
         # moderngl clears every attachment with the same value, so the shader writes
         # face id + 1 over a cleared 0; background depth is set to -1 from the face ids.
-        self._draw(gpu, self._gbuffer_program(kind, label_layout), fbo, mats)
+        name = self._gbuffer_program(kind, label_layout)
+        _set_uniforms(self.programs[name], {"u_decal_size": gpu.decal_size})
+        self._draw(gpu, name, fbo, mats)
         return lambda: self._read_gbuffer(fbo, bary_uv, labels, want)
 
     def _read_gbuffer(self, fbo, bary_uv, labels, want):
@@ -710,9 +769,11 @@ class Renderer:
         rgba = self._read(fbo, 0, 4, "f4", np.float32, flip=False)  # flipped by the split
         return {"rgb": np.ascontiguousarray(rgba[::-1, :, :3]), "alpha": np.ascontiguousarray(rgba[::-1, :, 3])}
 
-    def _bind_labels(self, gpu, mesh, label_texture, label_textures, vertex_labels) -> tuple:
+    def _bind_labels(self, gpu, mesh, label_texture, label_textures, vertex_labels,
+                     decal_labels=None) -> tuple:
         """Upload (once) and bind the label maps of a render; returns their names and
-        layout (number of maps, first per-vertex slot: those come last)."""
+        layout (number of maps, first per-vertex slot: those come last, the slot the
+        lesion decals give or -1)."""
         if label_textures is None and label_texture is not None:
             label_textures = {"labels": label_texture}
         elif label_texture is not None:
@@ -728,11 +789,20 @@ class Renderer:
         textures += [gpu.corner_labels(np.asarray(arr), mesh) for _, arr in per_vertex]
         for i in range(MAX_LABEL_MAPS):  # unused samplers still need a valid texture
             textures[min(i, len(textures) - 1)].use(i + 2)  # units 0, 1: colour, shadow map
-        return [name for name, _ in items + per_vertex], (len(textures), len(items))
+        names = [name for name, _ in items + per_vertex]
+        slot = -1
+        if decal_labels is not None and gpu.decals is not None:
+            if decal_labels not in names[:len(items)]:
+                raise ValueError(f"decal_labels {decal_labels!r} is not one of the label maps {names}")
+            slot = names.index(decal_labels)
+            gpu.bind_decals()
+        return names, (len(textures), len(items), slot)
 
     def _draw_labels(self, gpu, mats, names, label_layout, size):
         fbo = self._fbo("labels", *size)
-        self._draw(gpu, self._gbuffer_program("labels", label_layout), fbo, mats)
+        name = self._gbuffer_program("labels", label_layout)
+        _set_uniforms(self.programs[name], {"u_decal_size": gpu.decal_size})
+        self._draw(gpu, name, fbo, mats)
         return lambda: self._read_labels(fbo, 0, names)
 
     def _draw(self, gpu, prog_name, fbo, mats, clear=(0.0, 0.0, 0.0, 0.0), cull=True):

@@ -141,7 +141,7 @@ class BlendLesions(_Stage):
             t0 = time.perf_counter()
             record = {"method": b.method, "lesions": {}}
             renderer = self.renderer
-            if b.method == "paste" or not pasted.placements:
+            if b.method == "paste" or not any(p.kind == "image" for p in pasted.placements):
                 blended = pasted.pasted
             elif b.method == "poisson":
                 from .poisson import poisson_blend
@@ -157,17 +157,32 @@ class BlendLesions(_Stage):
                     extractor, self.feature_description = make_extractor(b.features, b.vgg_weights)
                     self._extractor = extractor
                 blender = DeepBlender(renderer, body.mesh, pasted, settings, extractor)
-                for p in tqdm(pasted.placements, desc=f"{body_id} lesions", unit="lesion", leave=False):
+                images = [p for p in pasted.placements if p.kind == "image"]  # fields need none
+                for p in tqdm(images, desc=f"{body_id} lesions", unit="lesion", leave=False):
                     losses = blender.blend(p, rng_for(cfg.seed, "blend", body_id, p.instance),
                                            torch_seed(cfg.seed, "blend", body_id, p.instance))
                     record["lesions"][p.instance] = {
                         "first": losses[0] if losses else None, "last": losses[-1] if losses else None}
                 blended = blender.result()
                 record["features"] = self.feature_description
+            if cfg.lesions.decal_size > 0 and pasted.placements:
+                # before blended.png, which marks the body as done
+                self._decals(body, pasted, blended, folder)
             write_png(os.path.join(folder, "blended.png"), blended)
             # no timings here: every file but manifest.json is the same on every run
             write_text(os.path.join(folder, "blend.json"), json.dumps(record, indent=1, sort_keys=True))
             self._time("blend", time.perf_counter() - t0)
+
+
+    def _decals(self, body, pasted, blended, folder):
+        """Each lesion at its own resolution (pipeline/decals.py), saved with the body."""
+        from ..assets.lesions import lesion_from_meta
+        from .decals import build_decals
+        renderer = self.renderer
+        decals = build_decals(renderer, body.mesh, TexelGeometry.of(renderer, body.mesh), pasted.original,
+                              pasted.pasted, blended, pasted.placements,
+                              lambda p: lesion_from_meta(p.lesion_meta), self.cfg.lesions.decal_size)
+        decals.save(folder)
 
 
 class Generate2DViews(_Stage):
@@ -278,7 +293,9 @@ class Generate2DViews(_Stage):
         (staged for upload) and label maps."""
         body = load_body(self.cfg, body_id)
         textured, instances, placements = self._textures(body_id, body)
-        mesh_b = body.mesh.copy_with(texture=textured)
+        from .decals import Decals
+        decals = Decals.load(self.body_dir(body_id)) if placements else None
+        mesh_b = body.mesh.copy_with(texture=textured, decals=decals)
         self.renderer.stage(mesh_b)
         return body, mesh_b, instances, placements
 
@@ -320,7 +337,7 @@ class Generate2DViews(_Stage):
         texel_area = mesh.face_areas / np.maximum(uv_area, 1e-30)   # surface per texel, by face
         sites = []
         for p in placements:  # only each lesion's texel box is rasterised (~10 ms, not 240)
-            tx = TexelGeometry.of(renderer, mesh, only=instances == p.instance, box=p.texel_box)
+            tx = TexelGeometry.of(renderer, mesh, only=np.isin(instances, p.ids), box=p.texel_box)
             if len(tx.rows):
                 sites.append(V.LesionSite(tx.points, tx.normals, float(texel_area[tx.faces].sum())))
         return sites
@@ -363,7 +380,7 @@ class Generate2DViews(_Stage):
                                            focal_px=float(cam.intrinsics()[1, 1]))
         if "rgb" in cfg.outputs and background is None:
             background = backgrounds.get(bg_index, v.size, v.size)
-        by_instance = {p.instance: p for p in placements}
+        by_instance = {k: p for p in placements for k in p.ids}
         lesions = []
         for k, region in layers["regions"].items():
             p = by_instance.get(k)

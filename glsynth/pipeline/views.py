@@ -258,6 +258,7 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     rgb = "rgb" in outputs
     out = renderer.render(mesh_b, scene.camera, passes=("gbuffer", "labels", "rgb") if rgb else
                           ("gbuffer", "labels"), label_textures=labels, vertex_labels=parts,
+                          decal_labels="instances",
                           buffers=buffers_for(outputs, [*labels, *parts]) + (("rgba8",) if rgb else ()),
                           lights=scene.lights, material=scene.material, supersample=v.supersample,
                           multisample=v.multisample, shadows=v.shadows)

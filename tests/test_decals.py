@@ -1,0 +1,117 @@
+"""Lesion decals (glsynth.pipeline.decals, shaders/decal.glsl): labels as sharp as a
+full-resolution texture of the same data, the torch path agreeing with GL, relief that
+changes shading and never labels."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+import glsynth as gs
+from glsynth import diff
+from glsynth.lighting import Material, PointLight
+from glsynth.pipeline.decals import Decals, projection_rows
+
+
+def plane_with_decal(rng, d=128, tex=64, ids=None, colour=None, aux=None, region_size=32):
+    """The z = 0 square [-1, 1]^2 (UV = (x + 1) / 2, (y + 1) / 2) with one decal seen from
+    straight above that covers [-0.5, 0.5]^2 with d x d pixels."""
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    texture = (rng.random((tex, tex, 3)) * 255).astype(np.uint8)
+    half = math.tan(math.radians(30.0) / 2)
+    cam = gs.Camera.look_at((0.0, 0.0, 0.5 / half), (0.0, 0.0, 0.0), up=(0, 1, 0), fov_deg=30.0,
+                            width=d, height=d)
+    view = cam.view_matrix()
+    region = np.zeros((region_size, region_size), np.uint16)
+    q = region_size // 4
+    region[q:3 * q, q:3 * q] = 1                          # texels over [-0.5, 0.5]^2
+    if ids is None:
+        ids = np.zeros((d, d), np.uint16)
+        for k in range(1, 4):                             # three blobs, ids 3..5
+            c = rng.uniform(0.2 * d, 0.8 * d, 2)
+            yy, xx = np.mgrid[0:d, 0:d]
+            ids[(yy - c[0]) ** 2 + (xx - c[1]) ** 2 < rng.uniform(0.05, 0.15) ** 2 * d * d] = k + 2
+    if colour is None:
+        colour = (rng.random((d, d, 4)) * 255).astype(np.uint8)
+        colour[..., 3] = 255
+    if aux is None:
+        aux = np.full((d, d, 4), (128, 128, 0, 128), np.uint8)
+    decals = Decals(region, projection_rows(cam)[None], np.stack([view[0, :3], -view[1, :3]])[None],
+                    np.array([1.0 / d]), colour[None], aux[None], ids[None])
+    mesh = gs.Mesh(v, f, uvs=(v[:, :2] + 1) / 2, texture=texture, name="decal-plane", decals=decals)
+    return mesh, decals
+
+
+def random_view(renderer, rng, dist=(0.6, 2.0)):
+    d = rng.normal(size=3) * np.array([0.4, 0.4, 0.0]) + np.array([0, 0, 1.0])
+    eye = d / np.linalg.norm(d) * rng.uniform(*dist)
+    return gs.Camera.look_at(eye, (rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), 0.0), up=(0, 1, 0),
+                             fov_deg=rng.uniform(25, 45), width=renderer.width, height=renderer.height)
+
+
+def test_decal_labels_equal_a_full_resolution_texture(renderer, rng):
+    """The decal's ids, read through the region map and the projection, give the same
+    label pixels as a label texture at the decal's resolution holding the same ids."""
+    d = 128
+    mesh, decals = plane_with_decal(rng, d=d)
+    full = np.zeros((2 * d, 2 * d), np.uint16)            # texel i covers x in [-1 + i/d, ...)
+    full[d // 2:d // 2 + d, d // 2:d // 2 + d] = decals.instances[0]
+    coarse = np.zeros((32, 32), np.uint16)                 # what a body texture would hold
+    for _ in range(3):
+        cam = random_view(renderer, rng)
+        a = renderer.render(mesh, cam, passes=("labels",), label_textures={"instances": coarse},
+                            decal_labels="instances")["instances"]
+        b = renderer.render(mesh.copy_with(decals=None), cam, passes=("labels",),
+                            label_textures={"instances": full})["instances"]
+        assert (b > 0).sum() > 200
+        differ = a != b
+        assert differ.mean() < 0.002, f"{differ.sum()} of {differ.size} label pixels differ"
+        # the few that differ lie on an edge between ids (rounding of the same boundary)
+        edge = np.zeros_like(differ)
+        edge[1:-1, 1:-1] = (b[1:-1, 1:-1] != b[:-2, 1:-1]) | (b[1:-1, 1:-1] != b[2:, 1:-1]) | \
+            (b[1:-1, 1:-1] != b[1:-1, :-2]) | (b[1:-1, 1:-1] != b[1:-1, 2:])
+        edge = np.maximum.reduce([np.roll(edge, s, a_) for s in (-1, 0, 1) for a_ in (0, 1)])
+        assert edge[differ].all()
+
+
+@pytest.mark.parametrize("model", ["phong", "skin"])
+def test_torch_matches_gl_with_decals(renderer, rng, model):
+    """Decal colour, coverage, relief and gloss through glsynth.diff agree with the GL
+    shading within 2/255, magnified and minified (mipmapped) alike."""
+    d = 256
+    colour = (rng.random((d, d, 4)) * 255).astype(np.uint8)
+    yy, xx = np.mgrid[0:d, 0:d] / d
+    colour[..., 3] = np.clip(255 * (1.5 - 3 * np.hypot(yy - 0.5, xx - 0.5)), 0, 255).astype(np.uint8)
+    aux = np.empty((d, d, 4), np.uint8)
+    aux[..., 0] = 128 + (40 * np.sin(12 * xx)).astype(np.int64)
+    aux[..., 1] = 128 + (40 * np.cos(9 * yy)).astype(np.int64)
+    aux[..., 2] = (255 * xx).astype(np.uint8)
+    aux[..., 3] = 128
+    mesh, _ = plane_with_decal(rng, d=d, colour=colour, aux=aux)
+    mat = Material() if model == "phong" else Material(model="skin", detail=False, wrap=0.2)
+    for dist in ((0.5, 0.8), (2.0, 4.0)):                  # decal magnified / minified
+        cam = random_view(renderer, rng, dist)
+        lights = [PointLight(np.asarray(cam.eye) + rng.normal(scale=0.3, size=3), ambient=0.3, diffuse=0.7)]
+        out = renderer.render(mesh, cam, passes=("gbuffer", "rgb"), lights=lights, material=mat)
+        img = diff.shade(out, mesh, torch.tensor(mesh.texture / 255.0, dtype=torch.float32), cam, lights, mat)
+        fg = out["face_id"] >= 0
+        err = np.abs(img.numpy() - out["rgb"])[fg]
+        assert err.max() <= 2 / 255, f"{model} at {dist}: max |torch - GL| {err.max() * 255:.2f}/255"
+
+
+def test_relief_changes_shading_but_not_labels(renderer, rng):
+    d = 128
+    flat, decals = plane_with_decal(rng, d=d)
+    aux = decals.aux[0].copy()
+    aux[..., 0] = 128 + (60 * np.sin(np.arange(d) / 3.0))[None, :].astype(np.int64)
+    bumpy, _ = plane_with_decal(rng, d=d, ids=decals.instances[0], colour=decals.colour[0], aux=aux)
+    bumpy = bumpy.copy_with(texture=flat.texture)
+    cam = random_view(renderer, rng, (0.6, 1.0))
+    light = [PointLight(np.asarray(cam.eye) + [0.5, 0.3, 0.0], ambient=0.2, diffuse=0.9)]
+    coarse = np.zeros((32, 32), np.uint16)
+    outs = [renderer.render(m, cam, passes=("labels", "rgb"), label_textures={"instances": coarse},
+                            decal_labels="instances", lights=light,
+                            material=Material(model="skin", detail=False)) for m in (flat, bumpy)]
+    assert (outs[0]["instances"] == outs[1]["instances"]).all()
+    assert np.abs(outs[0]["rgb"] - outs[1]["rgb"]).mean() > 2 / 255
