@@ -142,17 +142,46 @@ _TILES = [(200, 200, 195), (150, 150, 150), (215, 205, 185), (120, 110, 100), (2
 _FURN = [(90, 60, 40), (60, 60, 65), (140, 110, 80), (200, 200, 195), (70, 90, 110), (110, 40, 40)]
 
 
-class ProceduralBackgrounds(_Backgrounds):
-    """`n` seeded indoor scenes, size x size, rendered on access (image i depends only on
-    (seed, i))."""
+# Clinical backdrops: what surrounds skin in clinical photographs (sRGB)
+BACKDROPS = {
+    "drape": [(40, 110, 160), (30, 120, 130), (60, 140, 120), (45, 85, 150), (90, 150, 170)],
+    "sheet": [(232, 232, 228), (215, 222, 230), (200, 212, 220), (236, 230, 220)],
+    "paper": [(238, 238, 233), (228, 230, 226)],
+    "wall": [(200, 200, 195), (215, 210, 200), (170, 180, 185), (120, 130, 140), (60, 62, 66)],
+    "fabric": [(50, 60, 90), (30, 30, 35), (120, 30, 40), (200, 200, 200), (90, 110, 70), (150, 120, 90)],
+}
 
-    def __init__(self, n: int, seed: int = 0, size: int = 512):
+
+class ProceduralBackgrounds(_Backgrounds):
+    """`n` seeded backgrounds, size x size, rendered on access (image i depends only on
+    (seed, i)): indoor rooms and, with probability ``clinical``, the backdrops of clinical
+    photographs (surgical drapes, sheets, couch paper, plain walls, clothing fabric)."""
+
+    def __init__(self, n: int, seed: int = 0, size: int = 512, clinical: float = 0.0):
         if int(size) < 64:
             raise BackgroundError(f"procedural background size must be >= 64 px, got {size}")
-        self.seed, self.size = int(seed), int(size)
-        self.ids = [f"room-{self.seed}-{i}" for i in range(int(n))]
-        self.meta = [dict(self._layout(i), source="procedural", seed=self.seed, index=i)
-                     for i in range(int(n))]
+        self.seed, self.size, self.clinical = int(seed), int(size), float(clinical)
+        self.ids, self.meta = [], []
+        for i in range(int(n)):
+            backdrop = self._backdrop(i)
+            self.ids.append(f"{'room' if backdrop is None else backdrop['kind']}-{self.seed}-{i}")
+            self.meta.append(dict(self._layout(i) if backdrop is None else backdrop,
+                                  source="procedural", seed=self.seed, index=i))
+
+    def _backdrop(self, i):
+        """A clinical backdrop's layout, or None for a room (drawn from a stream of its
+        own, so rooms stay as they were when ``clinical`` is 0)."""
+        if self.clinical <= 0:
+            return None
+        rng = np.random.default_rng([self.seed, i, 7])
+        if rng.random() >= self.clinical:
+            return None
+        kind = str(rng.choice(list(BACKDROPS), p=[0.35, 0.2, 0.1, 0.2, 0.15]))
+        table = BACKDROPS[kind]
+        colour = np.clip(np.array(table[rng.integers(len(table))]) + rng.normal(0, 8, 3), 0, 255)
+        return {"kind": kind, "colour": tuple(int(c) for c in colour),
+                "folds": float(rng.uniform(0.3, 1.0)), "angle": float(rng.uniform(0, 180)),
+                "light": float(rng.uniform(0, 360))}
 
     def _layout(self, i):
         rng = np.random.default_rng([self.seed, i, 0])
@@ -169,6 +198,8 @@ class ProceduralBackgrounds(_Backgrounds):
     def _image(self, i):
         m, n = self.meta[i], self.size
         rng = np.random.default_rng([self.seed, i, 1])
+        if "kind" in m:
+            return self._backdrop_image(m, rng)
         img = np.empty((n, n, 3), np.float32)
         yy, xx = np.mgrid[0:n, 0:n].astype(np.float32) / n
         hz = int(m["horizon"] * n)
@@ -192,6 +223,36 @@ class ProceduralBackgrounds(_Backgrounds):
         for _ in range(m["furniture"]):
             self._furniture(img, rng, hz)
         img = cv2.GaussianBlur(img, (0, 0), 0.8) + 1.5 * rng.standard_normal(img.shape, np.float32)
+        return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+    def _backdrop_image(self, m, rng):
+        """Cloth, paper or wall: a colour lit across by folds (a height field's slope
+        towards the light), with the weave or grain of the material and sensor noise."""
+        n = self.size
+        yy, xx = np.mgrid[0:n, 0:n].astype(np.float32) / n
+        a = np.radians(m["angle"])
+        u = xx * np.cos(a) + yy * np.sin(a)
+        height = np.zeros((n, n), np.float32)
+        if m["kind"] in ("drape", "sheet", "fabric"):
+            # folds: ridges along one direction, bent by noise
+            bend = 0.15 * fractal_noise(rng, (n, n), n / 2, octaves=2)
+            height += m["folds"] * (np.sin(2 * np.pi * (u + bend) * rng.uniform(2, 5))
+                                    + 0.5 * fractal_noise(rng, (n, n), n / 5, octaves=3))
+        elif m["kind"] == "paper":
+            crinkle = np.abs(fractal_noise(rng, (n, n), n / 8, octaves=4))
+            height += 0.15 * (1 - np.clip(crinkle * 2, 0, 1))
+        gy, gx = np.gradient(height * n / 40.0)
+        la = np.radians(m["light"])
+        shade = 1 + 0.35 * np.clip(gx * np.cos(la) + gy * np.sin(la), -2, 2)
+        shade *= 1 - 0.25 * np.hypot(xx - 0.5, yy - 0.5)                  # light falls off
+        img = np.array(m["colour"], np.float32)[None, None] * shade[..., None]
+        if m["kind"] in ("drape", "fabric", "sheet"):                     # the weave
+            period = rng.uniform(2.5, 5.0)
+            weave = np.sin(2 * np.pi * xx * n / period) * np.sin(2 * np.pi * yy * n / period)
+            img *= (1 + 0.04 * weave)[..., None]
+        else:
+            img += 3.0 * fractal_noise(rng, (n, n), 2.0, octaves=2)[..., None]
+        img = cv2.GaussianBlur(img, (0, 0), 0.6) + 1.5 * rng.standard_normal(img.shape, np.float32)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
     def _window(self, img, rng, hz, m):
@@ -292,6 +353,7 @@ class ProceduralBackgrounds(_Backgrounds):
                 cv2.line(img, (x, y0 + 3), (x, y1 - 3), tuple(float(c) for c in col * 0.6), 1, cv2.LINE_AA)
 
 
-def procedural_backgrounds(n: int, seed: int = 0, size: int = 512) -> ProceduralBackgrounds:
-    """`n` seeded procedural indoor scenes (size x size); see ProceduralBackgrounds."""
-    return ProceduralBackgrounds(n, seed, size)
+def procedural_backgrounds(n: int, seed: int = 0, size: int = 512, clinical: float = 0.0
+                           ) -> ProceduralBackgrounds:
+    """`n` seeded procedural backgrounds (size x size); see ProceduralBackgrounds."""
+    return ProceduralBackgrounds(n, seed, size, clinical)
