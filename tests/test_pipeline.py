@@ -25,10 +25,30 @@ def small_config(*extra):
     return load_config(None, SMALL + list(extra))
 
 
+def image_lesion_folder(root, n=3, seed=0):
+    """Lesion photographs with masks in the pairs layout (``X.png`` + ``X_segmentation.png``),
+    here pictures of procedural conditions, so that the image path (paste, then blend)
+    runs end to end."""
+    from glsynth.io.images import write_png
+    root.mkdir(parents=True, exist_ok=True)
+    for i, les in enumerate(gs.assets.procedural_lesions(n, seed=seed, size=96,
+                                                         kinds=["nevus", "psoriasis", "ulcer"])):
+        write_png(root / f"lesion{i}.png", les.image)
+        write_png(root / f"lesion{i}_segmentation.png", les.mask.astype(np.uint8) * 255)
+    return root
+
+
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
+def dataset_args(tmp_path_factory):
+    """SMALL with lesion photographs: the dataset below exercises paste + deep blend."""
+    lesions = image_lesion_folder(tmp_path_factory.mktemp("lesions"))
+    return SMALL + [f"lesions.source={lesions}", "lesions.layout=pairs"]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory, dataset_args):
     out = tmp_path_factory.mktemp("ds")
-    gs.pipeline.generate(small_config(), out)
+    gs.pipeline.generate(load_config(None, dataset_args), out)
     return out
 
 
@@ -148,19 +168,19 @@ def _assert_same_folders(a, b, resumed=False):
     assert [k for k in a if a[k] != b[k]] == []
 
 
-def test_same_seed_same_bytes(dataset, tmp_path, monkeypatch):
+def test_same_seed_same_bytes(dataset, dataset_args, tmp_path, monkeypatch):
     # the second run makes every background on the render thread (no prefetching)
     from glsynth.pipeline.stages import Generate2DViews
     monkeypatch.setattr(Generate2DViews, "prefetch_views", 0)
-    gs.pipeline.generate(small_config(), tmp_path / "again")
+    gs.pipeline.generate(load_config(None, dataset_args), tmp_path / "again")
     _assert_same_folders(dataset, tmp_path / "again")
     assert any(k.startswith("bodies/") and k.endswith("blend.json") for k in _dataset_bytes(dataset))
 
 
-def test_resume_after_kill(dataset, tmp_path):
+def test_resume_after_kill(dataset, dataset_args, tmp_path):
     out = tmp_path / "killed"
     args = [sys.executable, "-m", "glsynth.cli", "generate", "--out", str(out)]
-    for s in SMALL:
+    for s in dataset_args:
         args += ["--set", s]
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 600
@@ -187,8 +207,8 @@ def test_resume_after_kill(dataset, tmp_path):
             elif n.endswith(".json"):
                 json.load(open(path))
     with pytest.raises(FileExistsError):
-        gs.pipeline.generate(small_config(), out)
-    gs.pipeline.generate(small_config(), out, resume=True)
+        gs.pipeline.generate(load_config(None, dataset_args), out)
+    gs.pipeline.generate(load_config(None, dataset_args), out, resume=True)
     assert _samples(out) == _samples(dataset)
     assert not [n for r, _, ns in os.walk(out) for n in ns if n.startswith(".tmp-")]
     _assert_same_folders(dataset, out, resumed=True)
@@ -298,3 +318,32 @@ def test_stages_release_the_renderer_they_make(tmp_path, renderer_spy):
                            renderer=mine).synthesize_views(progress=False)
         assert mine not in closed
     assert closed[-1] is mine
+
+
+@pytest.mark.slow
+def test_multi_lesion_conditions_give_one_instance_each_with_exact_boxes(tmp_path):
+    """Widespread conditions (acne, urticaria): each discrete lesion is its own instance,
+    recorded with its preset, and every box is the exact extent of its instance's pixels;
+    COCO holds one annotation per instance."""
+    cfg = small_config("lesions.kinds=[acne, urticaria]", "blend.method=poisson",
+                       "views.per_body=6", "views.framing={closeup: 1}", "lesions.resolution=192",
+                       "lesions.decal_size=256")
+    gs.pipeline.generate(cfg, tmp_path)
+    placements = json.load(open(tmp_path / "bodies" / "body000" / "placements.json"))
+    assert any(len(p["instance_ids"]) > 1 for p in placements)
+    all_ids = [k for p in placements for k in p["instance_ids"]]
+    assert len(all_ids) == len(set(all_ids))                       # ids never shared
+    coco = json.load(open(tmp_path / "annotations.coco.json"))
+    n_boxes = 0
+    for sid in _samples(tmp_path):
+        meta = json.load(open(tmp_path / "targets" / f"{sid}.json"))
+        inst = read_image(tmp_path / "targets" / f"{sid}_instances.png")
+        present = set(np.unique(inst[inst > 0]).tolist())
+        assert {l["instance"] for l in meta["lesions"]} == present
+        for l in meta["lesions"]:
+            ys, xs = np.nonzero(inst == l["instance"])
+            assert l["box"] == [int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1]
+            assert l["area"] == len(ys) and l["source"]["preset"] in ("acne", "urticaria")
+            n_boxes += 1
+    assert n_boxes > 6
+    assert len(coco["annotations"]) == n_boxes

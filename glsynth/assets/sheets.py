@@ -48,9 +48,93 @@ def body_sheet(path, seed=0, texture_size=1024, tile=(256, 384)):
     return path
 
 
+def condition_patch(fields, fitzpatrick, rng, texture_size=256):
+    """A flat square of skin (a Mesh, metres, facing +Z) of a Fitzpatrick type, with the
+    condition ``fields`` (morphology.LesionFields) over it as a decal at the grid's own
+    resolution, and skin micro-detail (relief, pores, vellus hair)."""
+    import glsynth as gs
+    from ..mesh import SkinSurface
+    from ..pipeline.decals import DETAIL_RANGE, SLOPE_RANGE, Decals, projection_rows
+    from .lesions import reference_skin
+    from .morphology import apply_to_skin
+    half = fields.extent_mm / 2000.0
+    n = 16
+    xs = np.linspace(-half, half, n)
+    xx, yy = np.meshgrid(xs, xs)
+    v = np.stack([xx.ravel(), yy.ravel(), np.zeros(n * n)], 1)
+    idx = np.arange(n * n).reshape(n, n)
+    f = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
+                        np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    uv = (v[:, :2] + half) / (2 * half)
+    size = fields.size
+    skin = reference_skin(fitzpatrick, size, rng)
+    texture = cv2.resize(skin, (texture_size, texture_size), interpolation=cv2.INTER_AREA)
+    colour = np.empty((size, size, 4), np.uint8)
+    colour[..., :3] = apply_to_skin(fields, skin)
+    colour[..., 3] = 255
+    gy, gx = np.gradient(fields.f["height"] / fields.mm_per_px)          # slope, mm per mm
+    aux = np.empty((size, size, 4), np.uint8)
+    aux[..., 0] = np.clip(128 + 127 * gx / SLOPE_RANGE, 0, 255)
+    aux[..., 1] = np.clip(128 + 127 * gy / SLOPE_RANGE, 0, 255)
+    aux[..., 2] = np.clip(255 * fields.f["gloss"], 0, 255)
+    aux[..., 3] = np.clip(255 * fields.f["detail"] / DETAIL_RANGE, 0, 255)
+    fov = 30.0
+    cam = gs.Camera.look_at((0, 0, half / np.tan(np.radians(fov) / 2)), (0, 0, 0), up=(0, 1, 0),
+                            fov_deg=fov, width=size, height=size)
+    view = cam.view_matrix()
+    decals = Decals(np.ones((8, 8), np.uint16), projection_rows(cam)[None],
+                    np.stack([view[0, :3], -view[1, :3]])[None], np.array([2 * half / size]),
+                    colour[None], aux[None], fields.instances[None])
+    params = np.zeros((8, 8, 4), np.uint8)
+    params[:] = (150, 90, 64, 110)
+    hair = v[f][..., :2].astype(np.float32)
+    return gs.Mesh(v, f, uvs=uv, texture=texture, name="condition-patch",
+                   skin=SkinSurface(params, None, hair, (60, 45, 35)), decals=decals)
+
+
+def lesion_atlas(folder, seed=0, tile=224, resolution=384):
+    """One sheet per preset: the condition on the six Fitzpatrick types (columns) under
+    a phone flash and under an oblique room light (rows), rendered as the views are
+    (skin shading, relief, micro-detail, decals), the outline drawn on the first."""
+    import glsynth as gs
+    from .morphology import PRESETS, make_condition
+    os.makedirs(folder, exist_ok=True)
+    r = gs.Renderer(tile, tile)
+    paths = []
+    for preset in tqdm(PRESETS, desc="lesion atlas", unit="preset"):
+        fields = make_condition(preset, [seed, 1], size=resolution)
+        rows = [[], []]
+        for fitz in range(1, 7):
+            mesh = condition_patch(fields, fitz, np.random.default_rng([seed, fitz]))
+            half = fields.extent_mm / 2000.0
+            cam = gs.Camera.look_at((0.05 * half, -0.1 * half, 1.1 * half / np.tan(np.radians(15))),
+                                    (0, 0, 0), up=(0, 1, 0), fov_deg=30, width=tile, height=tile)
+            eye = np.asarray(cam.eye)
+            for row, lights in enumerate((
+                    [gs.PointLight(eye, ambient=0.15, diffuse=0.9)],
+                    [gs.PointLight(eye + np.array([2.0, 1.5, -0.5]) * np.linalg.norm(eye), ambient=0.3,
+                                   diffuse=1.0)])):
+                out = r.render(mesh, cam, passes=("rgb", "labels"), label_textures={"instances":
+                               np.zeros((8, 8), np.uint16)}, decal_labels="instances", lights=lights,
+                               material=gs.Material(model="skin", roughness=0.4, oil=0.5),
+                               multisample=4)
+                img = (np.clip(out["rgb"], 0, 1) * 255).astype(np.uint8)
+                if row == 0 and fitz == 1:
+                    edge = cv2.morphologyEx((out["instances"] > 0).astype(np.uint8), cv2.MORPH_GRADIENT,
+                                            np.ones((3, 3), np.uint8)) > 0
+                    img[edge] = (40, 255, 40)
+                rows[row].append(_label(img, f"F{fitz}" + (" flash" if row == 0 else " room")))
+        sheet = _label(np.vstack([np.hstack(rw) for rw in rows]),
+                       f"{preset}: {fields.params.get('extent_mm')} mm")
+        path = os.path.join(folder, f"{preset}.png")
+        write_png(path, sheet)
+        paths.append(path)
+    return paths
+
+
 def lesion_sheet(path, seed=0, per_kind=6, tile=160):
     from .lesions import KINDS, procedural_lesions
-    lesions = procedural_lesions(per_kind * len(KINDS), seed=seed)
+    lesions = procedural_lesions(per_kind * len(KINDS), seed=seed, size=192)
     by_kind = {}
     for les in lesions:
         by_kind.setdefault(les.meta["kind"], []).append(les)
@@ -77,7 +161,8 @@ def write_sheets(out, seed=0, texture_size=1024):
     os.makedirs(out, exist_ok=True)
     return [body_sheet(os.path.join(out, "bodies.png"), seed, texture_size),
             lesion_sheet(os.path.join(out, "lesions.png"), seed),
-            background_sheet(os.path.join(out, "backgrounds.png"), seed)]
+            background_sheet(os.path.join(out, "backgrounds.png"), seed),
+            *lesion_atlas(os.path.join(out, "lesion_atlas"), seed)]
 
 
 def register(sub):
