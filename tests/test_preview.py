@@ -21,7 +21,7 @@ from glsynth.camera import Camera
 from glsynth.lighting import Material, PointLight
 from glsynth import preview as P
 
-from conftest import get_renderer
+from gl_context import get_renderer
 
 W, H = 320, 240
 TEX = 512
