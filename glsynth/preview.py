@@ -126,7 +126,7 @@ def colourise(name: str, layers: dict) -> np.ndarray:
         anat = np.minimum(layers["anatomy"], 16)
         if name == "anatomy":
             return ANATOMY_PALETTE[anat]
-        from .dataset import ANATOMY_GROUPS
+        from .dataformat import PART_GROUPS as ANATOMY_GROUPS
         return GROUP_PALETTE[ANATOMY_GROUPS[anat]]
     if name == "depth":
         d = layers["depth"]

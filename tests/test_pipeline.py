@@ -52,7 +52,7 @@ def test_every_sample_is_consistent(dataset):
         assert ((depth == -1) == (sem == 0)).all()
         assert (depth[sem > 0] > 0).all()
         # the paper's 3-class target is a partition of the image
-        from glsynth.dataset import three_class
+        from glsynth.dataformat import three_class
         three = three_class(sem)
         assert set(np.unique(three)) <= {0, 1, 2} and three.size == sem.size
         for l in meta["lesions"]:

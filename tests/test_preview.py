@@ -284,7 +284,7 @@ def test_label_buffers_match_offscreen_labels(driven, body):
     assert 0.3 < fg.mean() and (truth["semantic"] == 2).any() and (truth["semantic"] == 1).any()
     np.testing.assert_array_equal(invert(s["semantic"], P.SEMANTIC_PALETTE), truth["semantic"])
     np.testing.assert_array_equal(invert(s["anatomy"], P.ANATOMY_PALETTE), truth["anatomy"])
-    from glsynth.dataset import ANATOMY_GROUPS
+    from glsynth.dataformat import PART_GROUPS as ANATOMY_GROUPS
     np.testing.assert_array_equal(invert(s["anatomy_groups"], P.GROUP_PALETTE),
                                   ANATOMY_GROUPS[truth["anatomy"]])
     ids = np.arange(65)
