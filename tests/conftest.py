@@ -42,6 +42,8 @@ def pytest_runtest_makereport(item, call):
         seeds = {nid: s for nid, s in _seeds.items() if item.nodeid == nid or item.nodeid.startswith(nid + "::")}
         if seeds:
             lines = [f"{nid}: random seed {s}" for nid, s in seeds.items()]
+            if len(set(seeds.values())) > 1:
+                lines.append("GLSYNTH_TEST_SEED seeds every generator alike: replay one seed at a time")
             lines.append("replay: GLSYNTH_TEST_SEED=%d python -m pytest '%s'"
                          % (next(iter(seeds.values())), item.nodeid))
             report.sections.append(("random seed", "\n".join(lines)))
