@@ -57,7 +57,7 @@ ANATOMY_PALETTE = np.array([
     [145, 30, 180], [70, 240, 240], [240, 50, 230], [210, 245, 60], [250, 190, 212],
     [0, 128, 128], [220, 190, 255], [170, 110, 40], [255, 250, 200], [128, 0, 0],
     [170, 255, 195]], np.uint8)
-GROUP_PALETTE = ANATOMY_PALETTE[:8].copy()
+GROUP_PALETTE = ANATOMY_PALETTE[:8].copy()  # the groups take the first 8 part colours
 # 3-class target, plus index 3 for pixels a prediction leaves unknown
 THREE_CLASS_PALETTE = np.array([[220, 40, 40], [70, 180, 80], [40, 40, 120], [150, 150, 150]],
                                np.uint8)
