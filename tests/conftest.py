@@ -35,9 +35,9 @@ def module_rng(request):
     return _fresh_rng(request.node)
 
 
-@pytest.hookimpl(wrapper=True)
+@pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
-    report = yield
+    report = (yield).get_result()
     if report.failed:
         seeds = {nid: s for nid, s in _seeds.items() if item.nodeid == nid or item.nodeid.startswith(nid + "::")}
         if seeds:
@@ -47,7 +47,6 @@ def pytest_runtest_makereport(item, call):
             lines.append("replay: GLSYNTH_TEST_SEED=%d python -m pytest '%s'"
                          % (next(iter(seeds.values())), item.nodeid))
             report.sections.append(("random seed", "\n".join(lines)))
-    return report
 
 
 @pytest.fixture
