@@ -1,7 +1,8 @@
 """Locate data shipped with glsynth (GLSL shaders, YAML configs).
 
 In a source checkout or editable install they sit at the repository root
-(``shaders/``, ``configs/``); a wheel carries them inside the package.
+(``shaders/``, ``configs/``); a wheel carries them inside the package (pyproject.toml
+maps them to ``glsynth/shaders`` and ``glsynth/configs``).
 """
 from __future__ import annotations
 
@@ -15,8 +16,8 @@ def _find(kind: str) -> Path:
     for cand in (_PKG / kind, _PKG.parent / kind):
         if cand.is_dir():
             return cand
-    raise FileNotFoundError(f"glsynth {kind}/ folder not found next to {_PKG}; "
-                            "reinstall glsynth (pip install -e .)")
+    raise FileNotFoundError(f"glsynth's {kind}/ folder is neither in {_PKG} (an installed wheel) "
+                            f"nor in {_PKG.parent} (a source checkout); reinstall glsynth")
 
 
 def shader_dir() -> Path:

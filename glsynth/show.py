@@ -7,12 +7,9 @@ import os
 import cv2
 import numpy as np
 
-from .dataset import ANATOMY_GROUPS, SynthDataset
+from .dataformat import GROUP_PALETTE, SEMANTIC_PALETTE, group_labels
+from .dataset import SynthDataset
 from .io.images import write_png
-
-SEMANTIC_COLOURS = np.array([[0, 0, 0], [230, 190, 160], [200, 30, 40], [60, 110, 200]], np.uint8)
-GROUP_COLOURS = np.array([[0, 0, 0], [230, 25, 75], [60, 180, 75], [255, 225, 25], [0, 130, 200],
-                          [245, 130, 48], [145, 30, 180], [70, 240, 240]], np.uint8)
 
 
 def contact_sheet(root, out_png, n=6, tile=256):
@@ -31,8 +28,8 @@ def contact_sheet(root, out_png, n=6, tile=256):
         for nv in item["meta"].get("nevi", []):
             x0, y0, x1, y1 = nv["box"]
             cv2.rectangle(boxed, (x0, y0), (x1 - 1, y1 - 1), (0, 255, 255), 1)
-        sem = SEMANTIC_COLOURS[item["semantic"].numpy()]
-        ana = GROUP_COLOURS[ANATOMY_GROUPS[item["anatomy"].numpy()]]
+        sem = SEMANTIC_PALETTE[item["semantic"].numpy()]
+        ana = GROUP_PALETTE[group_labels(item["anatomy"].numpy())]
         d = item["depth"].numpy()
         body = d > 0
         dep = np.zeros(d.shape + (3,), np.uint8)

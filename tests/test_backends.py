@@ -53,9 +53,8 @@ def test_missing_library_names_package(monkeypatch):
 
 
 @pytest.mark.skipif(os.environ.get("GLSYNTH_GL_BACKEND") == "osmesa", reason="compared from the EGL run")
-def test_osmesa_and_egl_images_agree():
+def test_osmesa_and_egl_images_agree(rng):
     """Render in a subprocess with OSMesa and compare with EGL here."""
-    rng = np.random.default_rng(int.from_bytes(os.urandom(4), "little"))
     seed = int(rng.integers(1 << 30))
     script = f"""
 import numpy as np, sys

@@ -114,10 +114,9 @@ def test_procedural_backgrounds_look_like_rooms():
         procedural_backgrounds(1, size=16)
 
 
-def test_wide_blur_at_reduced_resolution_matches_the_full_blur():
+def test_wide_blur_at_reduced_resolution_matches_the_full_blur(rng):
     import cv2
     from glsynth.assets.backgrounds import _smooth
-    rng = np.random.default_rng()
     for _ in range(20):
         h, w = rng.integers(100, 600, 2)
         mask = np.zeros((h, w), np.float32)

@@ -35,8 +35,8 @@ def _lesion(rng, h=90, w=110):
 
 
 @pytest.fixture(scope="module")
-def scene():
-    rng = np.random.default_rng(int.from_bytes(__import__("os").urandom(4), "little"))
+def scene(module_rng):
+    rng = module_rng
     body = _skin_body(rng)
     r = gs.Renderer(VIEW, VIEW)
     tx = TexelGeometry.of(r, body.mesh)

@@ -14,7 +14,7 @@ from scipy.sparse.csgraph import connected_components
 
 pytest.importorskip("anny")
 
-from glsynth.assets import anatomy  # noqa: E402
+from glsynth import dataformat as fmt  # noqa: E402
 from glsynth.assets.bodies import POSES, make_body  # noqa: E402
 
 SIZE = 512
@@ -85,7 +85,7 @@ def test_all_16_labels_each_one_connected_region(default_body):
         keep = np.flatnonzero(main & (labels == part))
         sub = adj[keep][:, keep]
         n, _ = connected_components(sub, directed=False)
-        assert n == 1, f"part {part} ({anatomy.PART_NAMES[part]}) is split into {n} pieces"
+        assert n == 1, f"part {part} ({fmt.PART_NAMES[part]}) is split into {n} pieces"
 
 
 def test_left_labels_on_the_bodys_left(default_body):
@@ -104,7 +104,7 @@ def test_left_labels_on_the_bodys_left(default_body):
     for l_part in (5, 7, 9, 11, 13, 15):
         xl = v[labels == l_part] @ left
         xr = v[labels == l_part + 1] @ left
-        assert np.all(xl > 0) and np.all(xr < 0), anatomy.PART_NAMES[l_part]
+        assert np.all(xl > 0) and np.all(xr < 0), fmt.PART_NAMES[l_part]
     # hands, arms, feet are symmetric: same number of vertices each side
     for l_part in (5, 7, 9, 11, 13, 15):
         assert (labels == l_part).sum() == (labels == l_part + 1).sum()
@@ -113,9 +113,13 @@ def test_left_labels_on_the_bodys_left(default_body):
 def test_group_labels():
     labels = np.arange(17, dtype=np.uint8)
     expected = [0, 1, 2, 2, 3, 4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 7, 7]
-    assert anatomy.group_labels(labels).tolist() == expected
-    assert anatomy.group_labels(labels.reshape(1, 17)).shape == (1, 17)
-    assert [anatomy.GROUPS[i] for i in range(17)] == expected
+    assert fmt.group_labels(labels).tolist() == expected
+    assert fmt.group_labels(labels.reshape(1, 17)).shape == (1, 17)
+    # every part's group is named after it (upper torso -> torso, foot left -> feet...)
+    stem = {"feet": "foot"}
+    for part, name in fmt.PART_NAMES.items():
+        group = fmt.GROUP_NAMES[fmt.PART_GROUPS[part]]
+        assert stem.get(group, group.rstrip("s")) in name, (part, name, group)
 
 
 def test_frame_units_and_pose(default_body):
@@ -344,7 +348,7 @@ def test_anatomy_texture_parts_are_connected_with_straight_borders(default_body)
         g = sp.coo_matrix((np.ones(link.sum()), (pos[rows[link]], pos[cols[link]])),
                           shape=(len(keep), len(keep)))
         n, _ = connected_components(g, directed=False)
-        assert n == 1, f"part {part} ({anatomy.PART_NAMES[part]}) is split into {n} pieces on the surface"
+        assert n == 1, f"part {part} ({fmt.PART_NAMES[part]}) is split into {n} pieces on the surface"
     # trunk cuts: rest-pose heights of texels on either side of the 2|3 and 3|4 borders
     st = B._static()
     tface, tbary = B._raster(SIZE)

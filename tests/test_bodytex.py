@@ -247,7 +247,7 @@ def test_xatlas_uvs_and_baked_colours(ply_sphere):
 
 
 def test_baked_texture_renders_vertex_colours(ply_sphere, gl_backend):
-    from conftest import get_renderer
+    from gl_context import get_renderer
     path, verts, _ = ply_sphere
     body = load_mesh_body(path, texture_size=256)
     r = get_renderer(gl_backend, 64, 64)

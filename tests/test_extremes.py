@@ -390,7 +390,7 @@ def _blob_lesion(rng, h=40, w=48, id_="blob"):
 @pytest.fixture(scope="module")
 def small_scene():
     """A 64^2 placement view on a sheet with one pasted lesion: cheap blend steps."""
-    from conftest import GL_BACKEND, get_renderer
+    from gl_context import GL_BACKEND, get_renderer
     from glsynth.pipeline.paste import PasteSettings, paste_lesions
     rng = np.random.default_rng(5)
     body = _sheet(rng)

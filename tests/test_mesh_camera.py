@@ -107,8 +107,7 @@ def test_normals_are_unit_and_outward():
 
 
 @pytest.mark.parametrize("normal", [(0, 1, 0), (0, -1, 0), (0, 1e-9, 1), (1, 0, 0)])
-def test_from_surface_places_eye_and_keeps_valid_up(normal):
-    rng = np.random.default_rng()
+def test_from_surface_places_eye_and_keeps_valid_up(normal, rng):
     p = rng.normal(size=3)
     w = float(rng.uniform(0.005, 100))
     cam = gs.Camera.from_surface(p, normal, w)
@@ -123,8 +122,7 @@ def test_from_surface_places_eye_and_keeps_valid_up(normal):
     assert d["w"] == w and gs.Camera.from_dict(d).eye == cam.eye
 
 
-def test_projection_matches_intrinsics():
-    rng = np.random.default_rng()
+def test_projection_matches_intrinsics(rng):
     cam = gs.Camera.look_at(rng.normal(size=3) * 3, rng.normal(size=3) * 0.1, fov_deg=37, width=200, height=120)
     pts = np.asarray(cam.target) + rng.normal(scale=0.2, size=(50, 3))
     near, far = cam.clip_planes(pts.min(0), pts.max(0))
@@ -145,11 +143,10 @@ def test_clip_planes_keep_close_and_far_cameras_precise(w):
     assert near < w and far > w + 0.4 and far / near <= 1e5 + 1
 
 
-def test_near_plane_stays_in_front_of_a_face_nearer_than_its_corners():
+def test_near_plane_stays_in_front_of_a_face_nearer_than_its_corners(rng):
     """A camera just above the middle of a big triangle, looking away along it: the
     closest vertex, the look-at point and the bounding box are all far, the face is not.
     ``Mesh.distance_to`` finds it, so the near plane stays in front of the face."""
-    rng = np.random.default_rng()
     size, gap = rng.uniform(0.5, 2.0), rng.uniform(1e-3, 1e-2)
     # a second face reaches above the camera, so the bounding box gives no bound either
     tri = gs.Mesh([[0, 0, 0], [size, 0, 0], [0, size, 0], [0, 0, size]], [[0, 1, 2], [0, 1, 3]],
@@ -163,9 +160,8 @@ def test_near_plane_stays_in_front_of_a_face_nearer_than_its_corners():
     assert unbounded > gap  # what the vertices alone would give
 
 
-def test_distance_to_matches_every_face_measured():
+def test_distance_to_matches_every_face_measured(rng):
     trimesh = pytest.importorskip("trimesh")
-    rng = np.random.default_rng()
     tm = trimesh.creation.icosphere(2, radius=rng.uniform(0.2, 1.0))
     tm.vertices += rng.normal(scale=0.02, size=tm.vertices.shape)
     mesh = gs.Mesh(tm.vertices, tm.faces, require_texture=False)

@@ -29,7 +29,7 @@ def _blob(h=40, w=48, colour=(100, 60, 45)):
 
 @pytest.fixture(scope="module")
 def sheet():
-    from conftest import GL_BACKEND, get_renderer
+    from gl_context import GL_BACKEND, get_renderer
     body = skin_sheet(np.random.default_rng(11), n=24, tex=1024, blur=3, amplitude=50)
     r = get_renderer(GL_BACKEND, 128, 128)
     return SimpleNamespace(body=body, r=r, tx=TexelGeometry.of(r, body.mesh))

@@ -15,14 +15,7 @@ import torch
 import glsynth as gs
 from glsynth.config import ConfigError, load_config
 from glsynth.io.images import read_image, read_rgb
-
-SMALL = ["bodies.count=1", "bodies.texture_size=512", "lesions.per_body=2", "blend.method=deep", "blend.steps=4",
-         "blend.features=filters", "views.per_body=4", "views.size=128", "views.supersample=1",
-         "paste.view_size=256", "backgrounds.count=3", "seed=7"]
-
-
-def small_config(*extra):
-    return load_config(None, SMALL + list(extra))
+from runs import SMALL, assert_same_folders, dataset_bytes, small_config
 
 
 def image_lesion_folder(root, n=3, seed=0):
@@ -79,7 +72,7 @@ def test_every_sample_is_consistent(dataset):
         assert ((depth == -1) == (sem == 0)).all()
         assert (depth[sem > 0] > 0).all()
         # the paper's 3-class target is a partition of the image
-        from glsynth.dataset import three_class
+        from glsynth.dataformat import three_class
         three = three_class(sem)
         assert set(np.unique(three)) <= {0, 1, 2} and three.size == sem.size
         for l in meta["lesions"]:
@@ -141,40 +134,13 @@ def test_torch_dataset_and_show(dataset, tmp_path):
     assert sheet.shape[0] == 5 * 256 and sheet.shape[1] == 3 * 256
 
 
-# what a run records about itself in manifest.json; everything else in the folder,
-# bodies/ included, must be the same bytes for the same config and seed
-RUN_FACTS = ("timings_seconds", "workers", "executor")
-
-
-def _dataset_bytes(out, run_facts=RUN_FACTS):
-    """Every file of a run folder, manifest.json without ``run_facts``."""
-    files = {}
-    for root, _, names in os.walk(out):
-        for n in names:
-            rel = os.path.relpath(os.path.join(root, n), out)
-            data = open(os.path.join(root, n), "rb").read()
-            if rel == "manifest.json":
-                man = json.loads(data)
-                data = json.dumps({k: v for k, v in man.items() if k not in run_facts}, sort_keys=True)
-            files[rel] = data
-    return files
-
-
-def _assert_same_folders(a, b, resumed=False):
-    """Whole folders equal; a resumed run counts only the views it rejected itself."""
-    facts = RUN_FACTS + (("rejected_views",) if resumed else ())
-    a, b = _dataset_bytes(a, facts), _dataset_bytes(b, facts)
-    assert sorted(a) == sorted(b), sorted(set(a) ^ set(b))[:10]
-    assert [k for k in a if a[k] != b[k]] == []
-
-
 def test_same_seed_same_bytes(dataset, dataset_args, tmp_path, monkeypatch):
     # the second run makes every background on the render thread (no prefetching)
     from glsynth.pipeline.stages import Generate2DViews
     monkeypatch.setattr(Generate2DViews, "prefetch_views", 0)
     gs.pipeline.generate(load_config(None, dataset_args), tmp_path / "again")
-    _assert_same_folders(dataset, tmp_path / "again")
-    assert any(k.startswith("bodies/") and k.endswith("blend.json") for k in _dataset_bytes(dataset))
+    assert_same_folders(dataset, tmp_path / "again")
+    assert any(k.startswith("bodies/") and k.endswith("blend.json") for k in dataset_bytes(dataset))
 
 
 def test_resume_after_kill(dataset, dataset_args, tmp_path):
@@ -211,7 +177,7 @@ def test_resume_after_kill(dataset, dataset_args, tmp_path):
     gs.pipeline.generate(load_config(None, dataset_args), out, resume=True)
     assert _samples(out) == _samples(dataset)
     assert not [n for r, _, ns in os.walk(out) for n in ns if n.startswith(".tmp-")]
-    _assert_same_folders(dataset, out, resumed=True)
+    assert_same_folders(dataset, out, resumed=True)
 
 
 @pytest.mark.parametrize("override,key", [
@@ -231,10 +197,9 @@ def test_cli_reports_config_errors(tmp_path, capsys):
     assert "views.per_body" in capsys.readouterr().err
 
 
-def test_depth_tiff_is_lossless_and_readable_by_opencv(tmp_path):
+def test_depth_tiff_is_lossless_and_readable_by_opencv(tmp_path, rng):
     import tifffile
     from glsynth.pipeline.writer import write_depth
-    rng = np.random.default_rng()
     depth = rng.uniform(0.05, 40.0, size=(61, 77)).astype(np.float32)
     depth[rng.random(depth.shape) < 0.4] = -1.0
     depth[0, 0], depth[0, 1] = np.finfo(np.float32).tiny, np.float32(1e-30)
@@ -245,11 +210,10 @@ def test_depth_tiff_is_lossless_and_readable_by_opencv(tmp_path):
 
 
 
-def test_composite_is_the_rounded_premultiplied_over():
+def test_composite_is_the_rounded_premultiplied_over(rng):
     """Body over background in uint8 equals the float formula rounded, on fresh
     random coverage (0 and 255 included) and premultiplied colours."""
     from glsynth.pipeline.views import composite
-    rng = np.random.default_rng()
     for _ in range(10):
         h, w = rng.integers(1, 200, 2)
         alpha = rng.integers(0, 256, (h, w)).astype(np.uint8)

@@ -3,7 +3,9 @@
 The window side runs in subprocesses (the CLI, or a small driver script using
 ``glsynth.preview.Viewer``): Mesa's GLX (window) and EGL (the references here) do not mix
 well in one process. References are rendered offscreen in this process with the
-ordinary ``Renderer`` and compared with what the window's default framebuffer holds.
+ordinary ``Renderer`` (with the view settings of ``glsynth generate``'s embedded default
+config) and compared with what the window's default framebuffer holds; a dataset sample
+written by ``glsynth generate`` is compared with the preview of its record.
 """
 import argparse
 import json
@@ -17,15 +19,19 @@ import time
 import numpy as np
 import pytest
 
-from glsynth.camera import Camera
-from glsynth.lighting import Material, PointLight
+from glsynth import dataformat as fmt
 from glsynth import preview as P
+from glsynth.camera import Camera
+from glsynth.config import load_config
+from glsynth.lighting import Material, PointLight
 
-from conftest import get_renderer
+from gl_context import get_renderer
 
 W, H = 320, 240
 TEX = 512
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# what generate renders views with by default, and so what the previewer shows
+VIEWS = load_config(None).views
 
 
 # ---- fixtures ----------------------------------------------------------------------------
@@ -114,12 +120,16 @@ def instance_map():
 
 
 def reference(body, cam, lights=None, material=None, mesh=None):
-    """Offscreen render (EGL or OSMesa, this process) with the previewer's defaults."""
+    """Offscreen render (EGL or OSMesa, this process) as generate renders a view, with
+    the previewer's start light (the paper's, at the camera) and material."""
     r = get_renderer(os.environ.get("GLSYNTH_GL_BACKEND", "egl"), W, H)
     lights = lights or [PointLight(cam.eye, ambient=0.5, diffuse=0.5, specular=0.025)]
-    material = material or Material(specular=0.025, shininess=50)
-    return r.render(mesh or body.mesh, cam, passes=("rgb",), lights=lights,
-                    material=material)["rgb"]
+    material = material or Material(specular=0.025, shininess=50, model=VIEWS.shading,
+                                    detail=VIEWS.detail)
+    out = r.render(mesh or body.mesh, cam, passes=("rgb",), lights=lights, material=material,
+                   supersample=VIEWS.supersample, multisample=VIEWS.multisample,
+                   shadows=VIEWS.shadows, buffers=("rgba8",))
+    return out["rgba8"][..., :3] / 255
 
 
 def read_png(path):
@@ -153,14 +163,15 @@ glfw, win = v.glfw, v.window
 glfw.set_cursor_pos(win, 100, 80)
 glfw.poll_events()
 cx, cy = glfw.get_cursor_pos(win)
-v._on_mouse_button(win, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
-v._on_mouse_button(win, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+c = v.controls
+c.on_mouse_button(win, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+c.on_mouse_button(win, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
 before = v.camera
-v._on_mouse_button(win, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
-v._on_cursor(win, cx + 40, cy + 10)
-v._on_mouse_button(win, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+c.on_mouse_button(win, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+c.on_cursor(win, cx + 40, cy + 10)
+c.on_mouse_button(win, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
 dragged = v.camera
-v._on_scroll(win, 0, 2)
+c.on_scroll(win, 0, 2)
 mouse = {"cursor": [cx, cy], "before": before.to_dict(), "dragged": dragged.to_dict(),
          "scrolled": v.camera.to_dict()}
 v.set_camera(before)
@@ -262,8 +273,9 @@ def test_printed_snippet_reproduces_the_view(xdisplay, body, tmp_path):
     ref = reference(body, new_cam, [light], material)
     assert np.abs(read_png(shot) - ref).max() <= 2 / 255 + 1e-9
     # the snippet is also accepted back by --camera
-    cam2, light2, mat2 = P.parse_camera(json.dumps(snippet), W, H)
-    assert cam2.eye == new_cam.eye and light2 == snippet["light"]
+    view = P.parse_view(json.dumps(snippet))
+    assert view.camera.eye == new_cam.eye and view.lights[0].to_dict() == snippet["light"]
+    assert view.material == material
 
 
 def test_rgb_buffer_and_lesion_jump(driven, body):
@@ -282,15 +294,14 @@ def test_label_buffers_match_offscreen_labels(driven, body):
     truth = offscreen_labels(body, driven["camera"])
     fg = truth["face_id"] >= 0
     assert 0.3 < fg.mean() and (truth["semantic"] == 2).any() and (truth["semantic"] == 1).any()
-    np.testing.assert_array_equal(invert(s["semantic"], P.SEMANTIC_PALETTE), truth["semantic"])
-    np.testing.assert_array_equal(invert(s["anatomy"], P.ANATOMY_PALETTE), truth["anatomy"])
-    from glsynth.dataset import ANATOMY_GROUPS
-    np.testing.assert_array_equal(invert(s["anatomy_groups"], P.GROUP_PALETTE),
-                                  ANATOMY_GROUPS[truth["anatomy"]])
+    np.testing.assert_array_equal(invert(s["semantic"], fmt.SEMANTIC_PALETTE), truth["semantic"])
+    np.testing.assert_array_equal(invert(s["anatomy"], fmt.ANATOMY_PALETTE), truth["anatomy"])
+    np.testing.assert_array_equal(invert(s["anatomy_groups"], fmt.GROUP_PALETTE),
+                                  fmt.PART_GROUPS[truth["anatomy"]])
     ids = np.arange(65)
-    np.testing.assert_array_equal(invert(s["instances"], P.id_colours(ids)), truth["instances"])
+    np.testing.assert_array_equal(invert(s["instances"], fmt.id_colours(ids)), truth["instances"])
     assert len(np.unique(truth["instances"])) > 3
-    np.testing.assert_array_equal(s["face_id"], P.id_colours(truth["face_id"].astype(np.int64) + 1))
+    np.testing.assert_array_equal(s["face_id"], fmt.id_colours(truth["face_id"].astype(np.int64) + 1))
     # depth: black exactly off the body, brighter nearer
     np.testing.assert_array_equal(s["depth"].any(-1), truth["depth"] > 0)
     d, g = truth["depth"][fg], s["depth"][..., 0][fg].astype(float)
@@ -371,6 +382,34 @@ def test_blended_run_folder_and_lesion_jump(xdisplay, tmp_path):
                                         body_id="body999", texture_size=TEX))
 
 
+def test_a_samples_record_reproduces_its_rendering(xdisplay, tmp_path):
+    """--blended RUN --camera RUN/targets/<id>.json shows what generate rendered for that
+    sample: its camera, room light (tinted ambient), flash and skin material, with the
+    config's shading, multisampling and shadows. With the camera model off, the dataset
+    image equals the screenshot wherever the body covers the whole pixel (elsewhere the
+    background shows through, which the previewer leaves out)."""
+    import cv2
+    from glsynth.pipeline import generate
+    run = tmp_path / "run"
+    generate(load_config(None, ["bodies.count=1", f"bodies.texture_size={TEX}", "lesions.per_body=1",
+                                "views.per_body=1", "views.size=160", "views.flash=1.0",
+                                "views.closeup_flash=1.0", "photo.enabled=false",
+                                "backgrounds.count=1", "seed=5"]), run)
+    folder = fmt.RunFolder(run)
+    sid = folder.sample_ids()[0]
+    record = folder.record(sid)
+    assert len(record["lights"]) == 2 and record["material"]["model"] == VIEWS.shading == "skin"
+    assert VIEWS.multisample > 1 and VIEWS.shadows
+    shot = tmp_path / "shot.png"
+    run_cli(xdisplay, "--blended", run, "--camera", fmt.record_path(run, sid), "--screenshot", shot,
+            "--frames", 1)
+    img, ref = read_png(shot), folder.image(sid) / 255
+    assert img.shape == ref.shape == (160, 160, 3)
+    covered = cv2.erode((folder.layer(sid, "semantic") > 0).astype(np.uint8), np.ones((5, 5))) > 0
+    assert covered.mean() > 0.1
+    assert np.abs(img - ref)[covered].max() <= 2 / 255 + 1e-9
+
+
 def test_no_display_gives_a_clear_error(tmp_path):
     proc = run_cli(None, "--body", 0, "--screenshot", tmp_path / "x.png", check=False)
     assert proc.returncode == 2
@@ -379,24 +418,24 @@ def test_no_display_gives_a_clear_error(tmp_path):
 
 
 # ---- no window needed ------------------------------------------------------------------------------
-def test_parse_camera_and_errors(tmp_path):
+def test_parse_view_and_errors(tmp_path):
     cam = Camera.from_surface((0, 1, 0), (0, 0, 1), 0.5, width=64, height=64)
-    got, light, mat = P.parse_camera(json.dumps(cam.to_dict()), W, H)
-    assert got.eye == cam.eye and (got.width, got.height) == (W, H) and light is None
+    view = P.parse_view(json.dumps(cam.to_dict()))
+    assert view.camera == cam and view.lights is None and view.material is None and view.size is None
     f = tmp_path / "c.yaml"
     f.write_text("eye: [0, 1, 2]\ntarget: [0, 1, 0]\n")
-    assert P.parse_camera(str(f), W, H)[0].eye == (0.0, 1.0, 2.0)
+    assert P.parse_view(str(f)).camera.eye == (0.0, 1.0, 2.0)
     with pytest.raises(ValueError, match="eye"):
-        P.parse_camera('{"fov_deg": 30}', W, H)
+        P.parse_view('{"fov_deg": 30}')
     with pytest.raises(ValueError, match="JSON or YAML"):
-        P.parse_camera("{not json: [", W, H)
+        P.parse_view("{not json: [")
 
 
 def test_colourise_palettes():
-    ids = P.id_colours(np.arange(1, 200))
-    assert len({tuple(c) for c in ids}) == 199 and not P.id_colours(np.array([0, -1])).any()
+    ids = fmt.id_colours(np.arange(1, 200))
+    assert len({tuple(c) for c in ids}) == 199 and not fmt.id_colours(np.array([0, -1])).any()
     layers = {"semantic": np.array([[0, 1, 2, 3]], np.uint8)}
-    np.testing.assert_array_equal(P.colourise("semantic", layers)[0], P.SEMANTIC_PALETTE)
+    np.testing.assert_array_equal(P.colourise("semantic", layers)[0], fmt.SEMANTIC_PALETTE)
     with pytest.raises(ValueError, match="unknown buffer"):
         P.colourise("normals", layers)
 

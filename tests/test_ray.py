@@ -18,7 +18,7 @@ ray = pytest.importorskip("ray")
 import glsynth as gs  # noqa: E402
 from glsynth.config import load_config  # noqa: E402
 from glsynth.pipeline import ray_executor  # noqa: E402
-from test_pipeline import SMALL, _assert_same_folders  # noqa: E402  (the reduced end-to-end config)
+from runs import SMALL, assert_same_folders  # noqa: E402  (the reduced end-to-end config)
 
 pytestmark = pytest.mark.slow
 
@@ -50,7 +50,7 @@ def reference(tmp_path_factory):
 def _assert_same(reference, out, resumed=False):
     """The whole folders, bodies/ included; manifest.json without its timings and the
     worker count and executor it records."""
-    _assert_same_folders(reference, out, resumed)
+    assert_same_folders(reference, out, resumed)
 
 
 def _our_actors():

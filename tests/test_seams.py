@@ -18,9 +18,8 @@ def _seam_vertices(mesh):
     return np.nonzero(counts > 1)[0]
 
 
-def test_views_across_uv_seams_are_continuous(body):
+def test_views_across_uv_seams_are_continuous(body, rng):
     mesh = body.mesh
-    rng = np.random.default_rng(int.from_bytes(__import__("os").urandom(4), "little"))
     seam = _seam_vertices(mesh)
     h, w = body.nonskin.shape
     # seam vertices on skin (their UVs' texels are skin), away from hands, feet and head

@@ -17,12 +17,12 @@ import os
 import statistics
 import time
 
-from glsynth.preview import BUFFERS, Viewer, _size, load_scene, orbit
+from glsynth.preview import BUFFERS, Viewer, load_scene, orbit, parse_size
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=_size, default=(1024, 768))
+    ap.add_argument("--size", type=parse_size, default=(1024, 768))
     ap.add_argument("--body", type=int, default=0)
     ap.add_argument("--texture-size", type=int, default=1024)
     ap.add_argument("--buffer", default="rgb", choices=BUFFERS + ("all",))

@@ -1,4 +1,5 @@
-"""Anatomy labels (16 parts, DESIGN.md section 3) from skinning weights.
+"""Anatomy labels (16 parts, DESIGN.md section 3; names and groups in
+``glsynth.dataformat``) from skinning weights.
 
 Each vertex gets the part whose bones carry the largest *summed* skinning weight on it
 (summing per part, not taking the single heaviest bone, keeps a vertex shared by
@@ -46,21 +47,9 @@ import scipy.sparse as sp
 from scipy import ndimage
 from scipy.sparse.csgraph import connected_components
 
+from ..dataformat import N_PARTS
+
 log = logging.getLogger(__name__)
-
-PART_NAMES = {
-    1: "head", 2: "upper torso", 3: "lower torso", 4: "hips",
-    5: "upper leg left", 6: "upper leg right", 7: "lower leg left", 8: "lower leg right",
-    9: "foot left", 10: "foot right", 11: "upper arm left", 12: "upper arm right",
-    13: "lower arm left", 14: "lower arm right", 15: "hand left", 16: "hand right",
-}
-
-GROUP_NAMES = {0: "background", 1: "head", 2: "torso", 3: "hips", 4: "legs", 5: "feet",
-               6: "arms", 7: "hands"}
-# 16-part label -> 7-group label (0 stays background)
-GROUPS = {0: 0, 1: 1, 2: 2, 3: 2, 4: 3, 5: 4, 6: 4, 7: 4, 8: 4, 9: 5, 10: 5,
-          11: 6, 12: 6, 13: 6, 14: 6, 15: 7, 16: 7}
-_GROUP_LUT = np.array([GROUPS[i] for i in range(17)], dtype=np.uint8)
 
 # (bone-name prefix, part for a central bone or the left side, part for the right side)
 _BONE_TABLE = [
@@ -83,18 +72,13 @@ def bone_part(bone: str) -> int:
     return 1  # facial/helper bones
 
 
-def group_labels(labels) -> np.ndarray:
-    """Map 16-part labels (0 = background) to the 7 groups (0 = background), any shape."""
-    return _GROUP_LUT[np.asarray(labels, dtype=np.int64)]
-
-
 def part_scores(bone_labels, weights, indices) -> np.ndarray:
     """(V, 17) skinning weight summed per part (column 0 unused) from sparse (V, K)
     weights and bone indices."""
     weights, indices = np.asarray(weights, float), np.asarray(indices, np.int64)
     n = len(weights)
     part_of_bone = np.array([bone_part(b) for b in bone_labels], dtype=np.int64)
-    score = np.zeros((n, 17))
+    score = np.zeros((n, N_PARTS + 1))
     np.add.at(score, (np.repeat(np.arange(n), weights.shape[1]), part_of_bone[indices].ravel()),
               weights.ravel())
     return score
@@ -227,7 +211,7 @@ def _merge_islands(labels: np.ndarray, faces: np.ndarray, max_rounds: int = 20) 
             return labels
         # vote among neighbours that are not in a doomed piece
         edge = bad[rows] & ~bad[cols]
-        votes = np.zeros((n, 17))
+        votes = np.zeros((n, N_PARTS + 1))
         np.add.at(votes, (rows[edge], labels[cols[edge]]), 1.0)
         has = votes.sum(1) > 0
         fix = bad & has

@@ -41,6 +41,7 @@ import os
 
 import numpy as np
 
+from ..dataformat import N_PARTS
 from ..io.images import ImageError, read_mask, read_rgb
 from ..mesh import Mesh, MeshError
 from .bodies import Body
@@ -51,7 +52,6 @@ log = logging.getLogger(__name__)
 
 OBJ_NAME = "model_highres_0_normalized.obj"
 ANATOMY_NAME = "vertslabels_scan.npy"
-N_PARTS = 16
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 

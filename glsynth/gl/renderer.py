@@ -485,8 +485,6 @@ class Renderer:
             # than half floats)
             colors = [ctx.renderbuffer((w, h), 4, dtype="f1", samples=samples)]
             depth = ctx.depth_renderbuffer((w, h), samples=samples)
-        elif kind == "display":  # 8-bit, for showing on screen (previewer)
-            colors = [ctx.renderbuffer((w, h), 4, dtype="f1")]
         elif kind == "resolve":
             colors, depth = [ctx.renderbuffer((w, h), 4, dtype="f4")], None
         elif kind in ("rgb8", "resolve8"):  # 8-bit shading targets read back as rgba8
@@ -926,28 +924,6 @@ class Renderer:
     def __exit__(self, *exc):
         self.close()
         return False
-
-    def draw_rgb(self, mesh: Mesh, camera: Camera, lights=None, material=None, dtype="f4"):
-        """Draw the shading pass of ``render(mesh, camera, passes=("rgb",), lights=...,
-        material=...)`` (no supersampling) into a cached framebuffer and return that
-        framebuffer *without* reading it back (GL orientation: row 0 at the bottom): for
-        on-screen display, e.g. ``ctx.copy_framebuffer(ctx.screen, fbo)``.
-
-        dtype 'f4': the float32 RGBA framebuffer ``render`` uses (reused by the next
-        render of the same size); 'f1': an 8-bit RGBA framebuffer of its own (GL rounds
-        the shader's colour to 1/255 when writing it; less memory traffic, for display)."""
-        if dtype not in ("f4", "f1"):
-            raise ValueError(f"draw_rgb dtype must be 'f4' or 'f1', got {dtype!r}")
-        with self.ctx:
-            if mesh.texture is None:
-                raise ValueError(f"{mesh.name}: the rgb pass needs a texture")
-            gpu = self._gpu_mesh(mesh)
-            prog = self._shading_program(gpu, mesh, camera, lights, material, False)
-            self.ctx.enable(moderngl.DEPTH_TEST)
-            self.ctx.disable(moderngl.BLEND)
-            fbo = self._fbo("rgb" if dtype == "f4" else "display", camera.width, camera.height)
-            self._draw(gpu, prog, fbo, self._matrices(gpu, mesh, camera))
-            return fbo
 
 
 def vertex_label_image(out: dict, mesh: Mesh, vertex_labels=None) -> np.ndarray:

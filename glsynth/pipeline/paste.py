@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from ..camera import Camera
+from ..dataformat import BODY_INSTANCES, PASTED, PLACEMENTS
 from ..errors import GlsynthError
 from ..sampling import sample_bilinear
 from .seeding import rng_for
@@ -72,10 +73,10 @@ class PastedTextures:
     def save(self, folder):
         from ..io.images import write_bytes, write_png
         os.makedirs(folder, exist_ok=True)
-        write_png(os.path.join(folder, "pasted.png"), self.pasted)
+        write_png(os.path.join(folder, PASTED), self.pasted)
         write_png(os.path.join(folder, "dilated.png"), self.dilated)
-        write_png(os.path.join(folder, "instances.png"), self.instances)
-        write_bytes(os.path.join(folder, "placements.json"),
+        write_png(os.path.join(folder, BODY_INSTANCES), self.instances)
+        write_bytes(os.path.join(folder, PLACEMENTS),
                     json.dumps([asdict(p) for p in self.placements], indent=1,
                                sort_keys=True).encode())
 
@@ -83,20 +84,20 @@ class PastedTextures:
     def load(cls, folder, original):
         from ..io.images import read_rgb
         instances, placements = cls.load_instances(folder)
-        return cls(original, read_rgb(os.path.join(folder, "pasted.png")), instances,
+        return cls(original, read_rgb(os.path.join(folder, PASTED)), instances,
                    read_rgb(os.path.join(folder, "dilated.png")), placements)
 
     @staticmethod
     def load_instances(folder):
         """T_m and the placements: all that view generation needs besides the texture."""
         from ..io.images import read_image
-        with open(os.path.join(folder, "placements.json")) as fh:
+        with open(os.path.join(folder, PLACEMENTS)) as fh:
             placements = [Placement(**p) for p in json.load(fh)]
-        return read_image(os.path.join(folder, "instances.png")).astype(np.uint16), placements
+        return read_image(os.path.join(folder, BODY_INSTANCES)).astype(np.uint16), placements
 
     @staticmethod
     def exists(folder):
-        return os.path.isfile(os.path.join(folder, "placements.json"))
+        return os.path.isfile(os.path.join(folder, PLACEMENTS))
 
 
 @dataclass

@@ -24,6 +24,7 @@ from tqdm import tqdm
 
 from .. import __version__
 from ..config import Config
+from ..dataformat import BLENDED, BOX_CONVENTION, PASTED, camera_record, lights_record
 from ..errors import InputError
 from ..io.images import read_rgb, write_png, write_text
 from . import views as V
@@ -134,7 +135,7 @@ class BlendLesions(_Stage):
         self.feature_description = getattr(self, "feature_description", "none")
         for body_id in tqdm(self.body_ids, desc=f"blend ({b.method})", unit="body"):
             folder = self.body_dir(body_id)
-            if not PastedTextures.exists(folder) or os.path.isfile(os.path.join(folder, "blended.png")):
+            if not PastedTextures.exists(folder) or os.path.isfile(os.path.join(folder, BLENDED)):
                 continue
             body = load_body(cfg, body_id)
             pasted = PastedTextures.load(folder, body.mesh.texture)
@@ -168,7 +169,7 @@ class BlendLesions(_Stage):
             if cfg.lesions.decal_size > 0 and pasted.placements:
                 # before blended.png, which marks the body as done
                 self._decals(body, pasted, blended, folder)
-            write_png(os.path.join(folder, "blended.png"), blended)
+            write_png(os.path.join(folder, BLENDED), blended)
             # no timings here: every file but manifest.json is the same on every run
             write_text(os.path.join(folder, "blend.json"), json.dumps(record, indent=1, sort_keys=True))
             self._time("blend", time.perf_counter() - t0)
@@ -322,8 +323,8 @@ class Generate2DViews(_Stage):
         if self.cfg.lesions.per_body == 0 or not PastedTextures.exists(folder):
             return body.mesh.texture, np.zeros((h, w), np.uint16), []
         instances, placements = PastedTextures.load_instances(folder)
-        blended_path = os.path.join(folder, "blended.png")
-        texture = read_rgb(blended_path if os.path.isfile(blended_path) else os.path.join(folder, "pasted.png"))
+        blended_path = os.path.join(folder, BLENDED)
+        texture = read_rgb(blended_path if os.path.isfile(blended_path) else os.path.join(folder, PASTED))
         return texture, instances, placements
 
     def _lesion_points(self, renderer, mesh, instances, placements):
@@ -387,21 +388,10 @@ class Generate2DViews(_Stage):
             lesions.append({"instance": k, "box": region["box"], "area": region["area"],
                             "lesion_id": p.lesion_id if p else None,
                             "source": p.lesion_meta if p else None})
-        view = cam.view_matrix()
         meta = {"id": sid, "width": v.size, "height": v.size, "attempts": attempt,
-                "camera": {**cam.to_dict(), "centre": scene.centre, "framing": scene.framing,
-                           "intrinsics": cam.intrinsics().tolist(),
-                           "view_matrix": view.tolist(),
-                           "world_to_camera": view.tolist(),
-                           "world_to_camera_cv": (np.diag([1.0, -1.0, -1.0, 1.0]) @ view).tolist(),
-                           "conventions": "intrinsics K: pixels, row 0 at the top, pixel centres at "
-                                          "+0.5; world_to_camera (= view_matrix): OpenGL view space "
-                                          "(x right, y up, camera looks down -z); world_to_camera_cv:"
-                                          " OpenCV camera (x right, y down, z forward), the frame "
-                                          "K projects: [u v 1] ~ K @ (world_to_camera_cv @ X)[:3]"},
+                "camera": camera_record(cam, centre=scene.centre, framing=scene.framing),
                 "light": scene.light.to_dict(), "material": scene.material.to_dict(),
-                "lights": [{**l.to_dict(), "kind": kind} for l, kind in
-                           zip(scene.lights, ("room", "flash"))],
+                "lights": lights_record(scene.lights),
                 "ambient_tint": list(tint) if tint is not None else None,
                 "photo": photo_params,
                 "body": {"id": body_id, **_jsonable(body.meta)},
@@ -409,7 +399,7 @@ class Generate2DViews(_Stage):
                 "nevi": [{"id": k, "box": b} for k, b in layers.get("nevi_boxes", {}).items()],
                 "background": {"index": bg_index, "source": cfg.backgrounds.source, "blur": blur},
                 "fractions": layers["fractions"],
-                "box_convention": "[x0, y0, x1, y1] pixels, x1/y1 exclusive"}
+                "box_convention": BOX_CONVENTION}
         out, outputs = self.out, cfg.outputs
 
         def finish():

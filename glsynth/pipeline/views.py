@@ -14,9 +14,8 @@ import cv2
 import numpy as np
 
 from ..camera import Camera
+from ..dataformat import SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN
 from ..lighting import Material, PointLight
-
-SEMANTIC_BACKGROUND, SEMANTIC_SKIN, SEMANTIC_LESION, SEMANTIC_NONSKIN = 0, 1, 2, 3
 
 
 @dataclass

@@ -10,35 +10,38 @@ import os
 
 import numpy as np
 
+from ..dataformat import image_path, layer_path, record_path, sample_ids
 from ..io.images import write_bytes, write_png, write_text
 
 
 def sample_done(out_dir, sample_id) -> bool:
-    return os.path.isfile(os.path.join(out_dir, "targets", f"{sample_id}.json"))
+    return os.path.isfile(record_path(out_dir, sample_id))
 
 
 def write_sample(out_dir, sample_id, layers: dict, meta: dict, outputs):
-    tgt = os.path.join(out_dir, "targets")
+    def path(layer):
+        return layer_path(out_dir, sample_id, layer)
+
     if "rgb" in outputs:
-        write_png(os.path.join(out_dir, "images", f"{sample_id}.png"), layers["image"])
+        write_png(image_path(out_dir, sample_id), layers["image"])
     if "semantic" in outputs:
-        write_png(os.path.join(tgt, f"{sample_id}_semantic.png"), layers["semantic"])
+        write_png(path("semantic"), layers["semantic"])
     if "instances" in outputs:
-        write_png(os.path.join(tgt, f"{sample_id}_instances.png"), layers["instances"])
+        write_png(path("instances"), layers["instances"])
     if "anatomy" in outputs and "anatomy" in layers:
-        write_png(os.path.join(tgt, f"{sample_id}_anatomy.png"), layers["anatomy"])
+        write_png(path("anatomy"), layers["anatomy"])
     if "depth" in outputs:
-        write_depth(os.path.join(tgt, f"{sample_id}_depth.tiff"), layers["depth"])
+        write_depth(path("depth"), layers["depth"])
     if "nevi" in outputs:        # uint16 nevus ids (0 none; boxes in the JSON's "nevi")
-        write_png(os.path.join(tgt, f"{sample_id}_nevi.png"), layers["nevi"])
+        write_png(path("nevi"), layers["nevi"])
     # extra 3D outputs, as .npy (np.load reads them; no precision lost to PNG scaling)
     if "normals" in outputs:     # float16 H x W x 3, unit camera-space normals, 0 off the body
-        write_npy(os.path.join(tgt, f"{sample_id}_normals.npy"), layers["normals"].astype(np.float16))
+        write_npy(path("normals"), layers["normals"].astype(np.float16))
     if "uv" in outputs:          # float32 H x W x 2, texture (u, v), -1 off the body
-        write_npy(os.path.join(tgt, f"{sample_id}_uv.npy"), layers["uv"].astype(np.float32))
+        write_npy(path("uv"), layers["uv"].astype(np.float32))
     if "face_id" in outputs:     # int32 H x W, mesh face index, -1 off the body
-        write_npy(os.path.join(tgt, f"{sample_id}_face_id.npy"), layers["face_id"].astype(np.int32))
-    write_text(os.path.join(tgt, f"{sample_id}.json"), json.dumps(meta, indent=1, sort_keys=True))
+        write_npy(path("face_id"), layers["face_id"].astype(np.int32))
+    write_text(record_path(out_dir, sample_id), json.dumps(meta, indent=1, sort_keys=True))
 
 
 def write_depth(path, depth):
@@ -77,8 +80,7 @@ def read_json(path):
 def finalize(out_dir, manifest: dict):
     """COCO annotations, params.csv and manifest.json from every complete sample."""
     from concurrent.futures import ThreadPoolExecutor
-    tgt = os.path.join(out_dir, "targets")
-    ids = sorted(f[:-5] for f in os.listdir(tgt) if f.endswith(".json")) if os.path.isdir(tgt) else []
+    ids = sample_ids(out_dir)
     coco = {"info": {"description": "glsynth synthetic dermatology images",
                      "version": manifest.get("glsynth_version")},
             "categories": [{"id": 1, "name": "lesion", "supercategory": "skin condition"}],
@@ -86,7 +88,7 @@ def finalize(out_dir, manifest: dict):
     rows = []
     # decoding the instance PNGs is most of the work and releases the GIL: in threads
     with ThreadPoolExecutor(max(1, min(8, os.cpu_count() or 1))) as pool:
-        samples = pool.map(lambda sid: _coco_entries(tgt, sid), ids)
+        samples = pool.map(lambda sid: _coco_entries(out_dir, sid), ids)
         for img_id, (sid, meta, anns) in enumerate(samples, 1):
             coco["images"].append({"id": img_id, "file_name": f"images/{sid}.png", "width": meta["width"],
                                    "height": meta["height"], "glsynth_id": sid})
@@ -105,11 +107,11 @@ def finalize(out_dir, manifest: dict):
                durable=True)
 
 
-def _coco_entries(tgt, sid):
+def _coco_entries(out_dir, sid):
     """(sid, per-image JSON, its COCO annotations without ids)."""
     from ..io.images import read_image
-    meta = read_json(os.path.join(tgt, f"{sid}.json"))
-    inst_path = os.path.join(tgt, f"{sid}_instances.png")
+    meta = read_json(record_path(out_dir, sid))
+    inst_path = layer_path(out_dir, sid, "instances")
     inst = read_image(inst_path) if os.path.isfile(inst_path) else None
     anns = []
     for lesion in meta["lesions"]:

@@ -26,6 +26,7 @@ import torch
 import torch.nn.functional as F
 
 from ..assets.lesions import load_lesions
+from ..dataformat import THREE_CLASS_NAMES, THREE_CLASS_PALETTE
 from ..errors import InputError
 from ..io.images import ImageError, read_mask, read_rgb, write_png, write_text
 from .data import preprocess
@@ -34,7 +35,6 @@ from .metrics import dice, jaccard
 from .trainer import load_model
 
 CLASSES = ("lesion", "skin", "nonskin")
-COLOURS = np.array([[220, 40, 40], [70, 180, 80], [40, 40, 120], [150, 150, 150]], np.uint8)  # + unknown
 PAPER = {"lesion": "0.61 ± 0.23", "skin": "0.88 ± 0.10", "nonskin": "0.60 ± 0.43"}
 
 
@@ -122,8 +122,8 @@ def grid(rows, height=160, width=None):
     tiles = []
     for name, rgb, t, p in rows:
         a = _tile(rgb, height)
-        b = _tile(COLOURS[t], height)
-        c = _tile(COLOURS[p], height)
+        b = _tile(THREE_CLASS_PALETTE[t], height)
+        c = _tile(THREE_CLASS_PALETTE[p], height)
         line = np.concatenate([a, np.full((height, 4, 3), 255, np.uint8), b,
                                np.full((height, 4, 3), 255, np.uint8), c], 1)
         cv2.putText(line, name[:40], (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
@@ -137,7 +137,7 @@ def grid(rows, height=160, width=None):
         cv2.putText(head, txt, (4 + i * cw, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     legend = np.full((22, w, 3), 255, np.uint8)
     x = 4
-    for txt, col in zip(("lesion", "skin", "non-skin", "unknown"), COLOURS):
+    for txt, col in zip((*THREE_CLASS_NAMES.values(), "unknown"), THREE_CLASS_PALETTE):
         legend[5:17, x:x + 12] = col
         cv2.putText(legend, txt, (x + 16, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
         x += 100

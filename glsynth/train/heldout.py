@@ -28,7 +28,8 @@ import numpy as np
 
 from ..assets.backgrounds import procedural_backgrounds
 from ..assets.lesions import fractal_noise, procedural_lesions
-from ..io.images import read_image, read_rgb, write_bytes, write_png
+from ..dataformat import SEMANTIC_BACKGROUND, SEMANTIC_LESION, SEMANTIC_NONSKIN, RunFolder
+from ..io.images import write_bytes, write_png
 
 
 def _write(folder, img, lesion, nonskin, quality=90):
@@ -100,11 +101,12 @@ def procedural_clinical(out, n=60, seed=1000, size=384):
 
 def from_synthetic(dataset, out):
     """Rewrite a glsynth dataset in the fitz17k layout (image.jpg, lesions.png, nonskin.png)."""
-    ids = sorted(f[:-5] for f in os.listdir(os.path.join(dataset, "targets")) if f.endswith(".json"))
+    run = RunFolder(dataset)
+    ids = run.sample_ids()
     for sid in ids:
-        img = read_rgb(os.path.join(dataset, "images", f"{sid}.png"))
-        sem = read_image(os.path.join(dataset, "targets", f"{sid}_semantic.png"))
-        _write(os.path.join(out, sid), img, sem == 2, (sem == 0) | (sem == 3), quality=95)
+        sem = run.layer(sid, "semantic")
+        nonskin = (sem == SEMANTIC_BACKGROUND) | (sem == SEMANTIC_NONSKIN)
+        _write(os.path.join(out, sid), run.image(sid), sem == SEMANTIC_LESION, nonskin, quality=95)
     return ids
 
 

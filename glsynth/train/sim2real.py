@@ -28,6 +28,7 @@ import math
 import os
 import time
 
+from ..dataformat import sample_ids
 from ..io.images import write_text
 
 log = logging.getLogger(__name__)
@@ -180,8 +181,7 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
         _save_state(out, state)
         if not folders:
             raise RuntimeError(f"no data was generated within {minutes} minutes")
-    n_images = sum(sum(1 for n in os.listdir(os.path.join(f, "targets")) if n.endswith(".json"))
-                   for f in folders)
+    n_images = sum(len(sample_ids(f)) for f in folders)
 
     # 2. training: its length in steps fixed once from a timing of real steps
     ckpt = os.path.join(out, "model.pt")
