@@ -66,7 +66,7 @@ def load_scene(args) -> PreviewScene:
 
 def load_run_body(folder, body_id=None) -> PreviewScene:
     """A body of a ``glsynth generate`` run as its views see it: rebuilt from the run's
-    config, with its blended (else pasted) texture, lesion ids and placements."""
+    config, with its blended (else pasted) texture, lesion decals, ids and placements."""
     from ..io.images import read_image, read_rgb
     from ..pipeline.bodies import load_body
     run = fmt.RunFolder(folder)
@@ -103,8 +103,10 @@ def load_run_body(folder, body_id=None) -> PreviewScene:
     if os.path.isfile(run.body_path(body_id, fmt.PLACEMENTS)):
         with open(run.body_path(body_id, fmt.PLACEMENTS)) as fh:
             placements = json.load(fh)
-    return PreviewScene(body, body.mesh.copy_with(texture=texture), instances, placements, body_id,
-                        cfg.views)
+    from ..pipeline.decals import Decals
+    decals = Decals.load(run.body_path(body_id)) if placements else None
+    return PreviewScene(body, body.mesh.copy_with(texture=texture, decals=decals), instances,
+                        placements, body_id, cfg.views)
 
 
 @dataclass
