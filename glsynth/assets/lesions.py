@@ -392,7 +392,7 @@ def _csv_value(key, value):
 KINDS = tuple(PRESETS)
 # melanin volume fraction of a reference skin per Fitzpatrick type (chromophore model)
 # (mid-band ITA 65, 48, 35, 20, -8, -51 degrees at 2% blood)
-_REFERENCE_MELANIN = {1: 0.011, 2: 0.036, 3: 0.061, 4: 0.093, 5: 0.17, 6: 0.31}
+_REFERENCE_MELANIN = {1: 0.0074, 2: 0.03, 3: 0.051, 4: 0.082, 5: 0.166, 6: 0.29}
 
 
 @dataclass

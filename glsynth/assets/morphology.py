@@ -224,10 +224,10 @@ class Builder:
 
     # secondary changes
     def erythema(self, w, amount, oxygen=0.8):
-        """Dilated papillary vessels: ``amount`` x 5% blood volume added (negative:
+        """Dilated papillary vessels: ``amount`` x 10% blood volume added (negative:
         blanching, a factor on the skin's own blood)."""
         if amount >= 0:
-            self.f["blood_add"] += w * amount * 0.05
+            self.f["blood_add"] += w * amount * 0.1
         else:
             self.mix("blood", w, 1 + amount)
         self.mix("oxygen", w, oxygen)

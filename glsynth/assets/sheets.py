@@ -157,6 +157,43 @@ def background_sheet(path, seed=0, n=12, tile=192):
     return path
 
 
+def closeup_sheet(path, data, real=None, n=12, tile=224):
+    """Close-ups of a glsynth dataset (``data``: a ``glsynth generate`` folder) beside
+    real clinical photographs (``real``: a folder in the Fitzpatrick17k or pairs layout,
+    the user's own; read, never copied), alternating, for a person to compare."""
+    from ..dataformat import RunFolder, image_path
+    from ..io.images import read_rgb
+    run = RunFolder(data)
+    synth = [image_path(run.root, sid) for sid in run.sample_ids()
+             if run.record(sid)["camera"].get("framing") == "closeup"][:n]
+    photos = []
+    if real is not None:
+        from .lesions import load_lesions
+        for layout in ("fitz17k", "pairs"):
+            try:
+                photos = [e.image_path for e in load_lesions(real, layout=layout, lazy=True).entries][:n]
+                break
+            except Exception:  # noqa: BLE001 - try the other layout
+                continue
+    def square(img):
+        h, w = img.shape[:2]
+        c = min(h, w)
+        y0, x0 = (h - c) // 2, (w - c) // 2
+        return cv2.resize(img[y0:y0 + c, x0:x0 + c], (tile, tile), interpolation=cv2.INTER_AREA)
+    tiles = []
+    for i in range(max(len(synth), len(photos))):
+        if i < len(synth):
+            tiles.append(_label(square(read_rgb(synth[i])), "glsynth"))
+        if i < len(photos):
+            tiles.append(_label(square(read_rgb(photos[i])), "real"))
+    if not tiles:
+        raise FileNotFoundError(f"{data}: no close-up views (views.framing has no closeup?)")
+    cols = 6
+    tiles += [np.full_like(tiles[0], 255)] * (-len(tiles) % cols)
+    write_png(path, np.vstack([np.hstack(tiles[i:i + cols]) for i in range(0, len(tiles), cols)]))
+    return path
+
+
 def write_sheets(out, seed=0, texture_size=1024):
     os.makedirs(out, exist_ok=True)
     return [body_sheet(os.path.join(out, "bodies.png"), seed, texture_size),
@@ -166,12 +203,27 @@ def write_sheets(out, seed=0, texture_size=1024):
 
 
 def register(sub):
-    p = sub.add_parser("assets", help="contact sheets of the built-in bodies, lesions and rooms")
-    p.add_argument("--out", required=True, help="folder for bodies.png, lesions.png, backgrounds.png")
+    p = sub.add_parser("assets", help="contact sheets of the built-in bodies, lesions, lesion "
+                                      "atlas and backgrounds, and close-ups beside real photographs")
+    p.add_argument("--out", required=True, help="folder for bodies.png, lesions.png, backgrounds.png, "
+                                               "lesion_atlas/, closeups.png")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--texture-size", type=int, default=1024)
+    p.add_argument("--data", default=None, help="a glsynth dataset whose close-ups closeups.png shows "
+                                                "(default: a small one made with the embedded config)")
+    p.add_argument("--real", default=None, help="real photographs (fitz17k or pairs layout) to show "
+                                                "beside the close-ups")
 
     def run(args):
         for path in write_sheets(args.out, args.seed, args.texture_size):
             print(f"wrote {path}")
+        data = args.data
+        if data is None:
+            from ..config import load_config
+            from ..pipeline import generate
+            data = os.path.join(args.out, "closeup_data")
+            if not os.path.isdir(os.path.join(data, "images")):
+                generate(load_config(None, [f"seed={args.seed}", "views.per_body=16",
+                                            "views.framing={closeup: 1}"]), data)
+        print(f"wrote {closeup_sheet(os.path.join(args.out, 'closeups.png'), data, args.real)}")
     p.set_defaults(fn=run)
