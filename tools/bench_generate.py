@@ -9,8 +9,11 @@
    (what a long dataset run sustains), the fixed cost is what a run spends beyond it
    (worker start-up, the first body's load, procedural rooms, COCO at the end), and the
    end-to-end rate is that of the longer run. Medians over ``--repeats``.
-2. Seconds per blended lesion: deep blend (paper settings, 400 steps) with the
-   weight-free filter bank, with VGG16 when weights are found locally, and Poisson.
+2. Seconds per lesion: procedural conditions (the default; their fields and decals, no
+   blend), and lesion photographs (``lesions.source``, here pictures of procedural
+   conditions written to a folder) pasted and blended: deep blend (paper settings, 400
+   steps) with the weight-free filter bank, with VGG16 when weights are found locally,
+   and Poisson; each includes the lesion's decal.
 3. RGB-only generation against the default targets and against all eight targets
    (what leaving out unused passes, read-backs and writes saves), with the CPU time per
    sample in the steady state (all processes; on 2 cores, samples/s can be at most
@@ -28,6 +31,8 @@ import time
 
 import glsynth as gs
 from glsynth.config import load_config
+from glsynth.io.images import write_png
+from glsynth.pipeline.runlock import FINGERPRINT, fingerprint
 from glsynth.pipeline.stages import generate
 
 
@@ -45,11 +50,28 @@ def _timed_run(overrides, workers, prepared):
     out = tempfile.mkdtemp(prefix="glsynth-bench-")
     shutil.copytree(f"{prepared}/bodies", f"{out}/bodies")
     cfg = load_config(None, overrides)
+    _adopt(out, cfg)
     t0, c0 = time.perf_counter(), _cpu_seconds()
     manifest = generate(cfg, out, resume=True, workers=workers)
     dt, dc = time.perf_counter() - t0, _cpu_seconds() - c0
     shutil.rmtree(out)
     return manifest["counts"]["images"], dt, dc, manifest
+
+
+def _adopt(out, cfg):
+    """Mark the copied bodies as this config's run: they do not depend on the settings
+    the benchmark varies (views per body, outputs), which a real resume would refuse."""
+    with open(os.path.join(out, FINGERPRINT), "w") as fh:
+        json.dump(fingerprint(cfg), fh)
+
+
+def _lesion_photographs(root, n=6, seed=0, size=256):
+    """A lesion folder in the pairs layout: pictures of procedural conditions."""
+    os.makedirs(root, exist_ok=True)
+    for i, les in enumerate(gs.assets.procedural_lesions(n, seed=seed, size=size)):
+        write_png(f"{root}/lesion{i}.png", les.image)
+        write_png(f"{root}/lesion{i}_segmentation.png", les.mask.astype("uint8") * 255)
+    return root
 
 
 def _views_run(overrides, workers, repeats, prepared, views, short):
@@ -78,6 +100,7 @@ def main(argv=None):
     ap.add_argument("--blend-steps", type=int, default=400)
     ap.add_argument("--workers", default="1,2",
                     help="comma-separated worker counts for the default and RGB-only rows")
+    ap.add_argument("--no-lesions", action="store_true", help="leave out the seconds-per-lesion table")
     args = ap.parse_args(argv)
     counts = tuple(int(n) for n in args.workers.split(","))
     base = [f"views.per_body={args.views}"]
@@ -109,31 +132,38 @@ def main(argv=None):
           f"workers (default): {rows[('default (5 targets)', most)] / rows[('default (5 targets)', one)]:.2f}x")
     print(f"GL_RENDERER: {man['gl_renderer']}\n")
 
-    print(f"## Blend seconds per lesion (paper settings, {args.blend_steps} steps for deep)\n")
-    print("| method | features | seconds per lesion |\n|---|---|---:|")
+    if args.no_lesions:
+        shutil.rmtree(prepared)
+        return
+    print(f"## Seconds per lesion (paper settings, {args.blend_steps} steps for deep; incl. decals)\n")
+    print("| lesions | method | features | seconds per lesion |\n|---|---|---|---:|")
     from glsynth.pipeline.features import find_vgg_weights
-    variants = [("poisson", "-"), ("deep", "filters")]
+    photos = _lesion_photographs(tempfile.mkdtemp(prefix="glsynth-lesions-"))
+    image_source = [f"lesions.source={photos}", "lesions.layout=pairs"]
+    variants = [("procedural", [], "-"), ("photographs", image_source + ["blend.method=poisson"], "-"),
+                ("photographs", image_source + ["blend.method=deep", f"blend.steps={args.blend_steps}"],
+                 "filters")]
     if find_vgg_weights() is not None:
-        variants.append(("deep", "vgg16"))
-    for method, feats in variants:
+        variants.append(("photographs", image_source + ["blend.method=deep", "blend.features=vgg16",
+                                                        f"blend.steps={args.blend_steps}"], "vgg16"))
+    for name, overrides, feats in variants:
         out = tempfile.mkdtemp(prefix="glsynth-blend-")
-        shutil.copytree(f"{prepared}/bodies", f"{out}/bodies")
+        cfg = load_config(None, base + ["views.per_body=0"] + overrides)
+        generate(cfg, out)  # bodies and paste; then blend again, timed alone
         for b in ("body000", "body001"):
-            for f in ("blended.png", "blend.json"):
+            for f in ("blended.png", "blend.json", "decals.npz"):
                 p = f"{out}/bodies/{b}/{f}"
-                try:
+                if os.path.exists(p):
                     os.unlink(p)
-                except FileNotFoundError:
-                    pass
-        cfg = load_config(None, base + [f"blend.method={method}", f"blend.steps={args.blend_steps}"] +
-                          ([f"blend.features={feats}"] if feats != "-" else []))
         stage = gs.BlendLesions(cfg, out)
         t0 = time.perf_counter()
         stage.blend_lesions()
         dt = time.perf_counter() - t0
         n = sum(len(json.load(open(f"{out}/bodies/{b}/placements.json"))) for b in ("body000", "body001"))
-        print(f"| {method} | {feats} | {dt / max(n, 1):.2f} |")
+        method = cfg.blend.method if name == "photographs" else "fields (no blend)"
+        print(f"| {name} | {method} | {feats} | {dt / max(n, 1):.2f} |", flush=True)
         shutil.rmtree(out)
+    shutil.rmtree(photos)
     shutil.rmtree(prepared)
 
 
