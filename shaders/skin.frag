@@ -8,7 +8,7 @@
 // * specular: one GGX lobe with Smith masking and Schlick's Fresnel (F0 0.028, skin's
 //   refractive index 1.4); sebum (the per-body oiliness map) sharpens and raises it.
 // With DETAIL, micro-detail that no body texture could hold (glsynth.assets.detail):
-// the relief tile projected three ways from the world position (furrows and pores as a
+// the relief tile projected from the world position along the two axes nearest the normal (furrows and pores as a
 // normal perturbation and cavity darkening), and with HAIR, hair strands from the hair
 // tile in per-vertex hair-flow coordinates, shaded as fibres (Kajiya-Kay) and casting
 // a short parallax shadow. Both are scaled by the per-body skin parameters (u_params)
@@ -71,6 +71,16 @@ out vec4 out_color;
 #define DECAL_DETAIL 2.0    // decals.DETAIL_RANGE
 #endif
 
+#if DETAIL
+// The relief tile projected along world axis ``i`` at point p: its texel, and the world
+// directions of the tile's u and v
+vec4 relief_along(int i, vec3 p, float lod, out vec3 eu, out vec3 ev) {
+    eu = i == 0 ? vec3(0.0, 0.0, 1.0) : vec3(1.0, 0.0, 0.0);
+    ev = i == 1 ? vec3(0.0, 0.0, 1.0) : vec3(0.0, 1.0, 0.0);
+    return textureLod(u_relief, vec2(dot(p, eu), dot(p, ev)) / u_relief_period, lod);
+}
+#endif
+
 vec3 to_linear(vec3 c) {
     return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(0.04045, c));
 }
@@ -112,22 +122,28 @@ void main() {
     vec4 prm = texture(u_params, vec2(uv.x, 1.0 - uv.y)) * min(detail_weight, 1.0);
     oil = prm.a * u_oil;
     float lod = log2(max(footprint / u_relief_period * u_relief_size, 1e-6));
-    vec3 w = ng * ng;
+    // the tile projected along the two world axes nearest the normal (two lookups, not
+    // three), each weighted by how much more it faces the normal than the third axis:
+    // that weight is zero where the second and third change places, so no seam shows
+    vec3 a = abs(ng);
+    int lo = a.x <= a.y ? (a.x <= a.z ? 0 : 2) : (a.y <= a.z ? 1 : 2);
+    int i1 = (lo + 1) % 3, i2 = (lo + 2) % 3;
+    vec2 w = vec2(a[i1], a[i2]) - a[lo];
     w *= w;
-    w /= max(w.x + w.y + w.z, 1e-12);
-    vec4 px = textureLod(u_relief, world.zy / u_relief_period, lod);
-    vec4 py = textureLod(u_relief, world.xz / u_relief_period, lod);
-    vec4 pz = textureLod(u_relief, world.xy / u_relief_period, lod);
-    vec2 sx = px.rg, sy = py.rg, sz = pz.rg;
+    w *= w;
+    w = w.x + w.y > 1e-12 ? w / (w.x + w.y) : vec2(0.5);
+    vec3 u1, v1, u2, v2;
+    vec4 p1 = relief_along(i1, world, lod, u1, v1);
+    vec4 p2 = relief_along(i2, world, lod, u2, v2);
     // the height gradient of each projection in world axes, blended, then kept in the
     // tangent plane (the surface gradient)
     // lichenified skin (detail weight above 1) deepens the relief
     float relief = prm.r * u_relief_amount * max(detail_weight, 1.0);
-    grad += relief * (w.x * vec3(0.0, sx.y, sx.x) + w.y * vec3(sy.x, 0.0, sy.y) + w.z * vec3(sz.x, sz.y, 0.0));
+    grad += relief * (w.x * (p1.r * u1 + p1.g * v1) + w.y * (p2.r * u2 + p2.g * v2));
     // albedo: furrow darkening and melanin speckle (mean 0 over the tile), pores (their
     // mean darkening over the tile, u_pore_mean, given back so far views keep the colour)
-    float tone = dot(w, vec3(px.b, py.b, pz.b));
-    float pore = dot(w, vec3(px.a, py.a, pz.a));
+    float tone = dot(w, vec2(p1.b, p2.b));
+    float pore = dot(w, vec2(p1.a, p2.a));
     albedo *= (1.0 + min(relief, 1.0) * tone) * (1.0 - 0.6 * prm.g * (pore - u_pore_mean));
 #if HAIR
     // hair-flow frame of this face: dp/ds (along the hairs) and dp/dt
@@ -197,7 +213,8 @@ void main() {
             float D = a2 / (PI * d * d);
             float G = nl_detail / (nl_detail * (1.0 - k) + k) * nv / (nv * (1.0 - k) + k);
             // clamped: with the light at the eye (a flash) v.h rounds to just above 1
-            float F = F0 + (1.0 - F0) * pow(clamp(1.0 - dot(v, h), 0.0, 1.0), 5.0);
+            float m = clamp(1.0 - dot(v, h), 0.0, 1.0), m2 = m * m;
+            float F = F0 + (1.0 - F0) * (m2 * m2 * m);   // Schlick: m^5 (pow is slow on llvmpipe)
             spec_sum += vis * shade * u_light_diffuse[i] * (PI * D * F * G / (4.0 * nv) * (1.0 + 0.4 * oil + gloss));
         }
 #if HAIR
@@ -207,7 +224,8 @@ void main() {
         vec3 hh = (l + v) / max(length(l + v), 1e-20);
         float th = dot(fibre, hh);
         hair_light += u_light_ambient[i] + vis * u_light_diffuse[i] * (0.3 + 0.7 * sqrt(max(1.0 - tl * tl, 0.0)));
-        hair_spec += vis * u_light_diffuse[i] * 0.12 * pow(sqrt(max(1.0 - th * th, 0.0)), 40.0);
+        float s2 = max(1.0 - th * th, 0.0), s4 = s2 * s2, s16 = s4 * s4 * s4 * s4;
+        hair_spec += vis * u_light_diffuse[i] * 0.12 * (s16 * s4);   // sine^40
 #endif
     }
     vec3 colour = albedo * light_sum + spec_sum;

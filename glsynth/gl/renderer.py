@@ -88,7 +88,9 @@ def _upload_decals(ctx, decals) -> dict:
     for name in ("u_decal_region", "u_decal_info", "u_decal_ids"):
         out[name].filter = (moderngl.NEAREST, moderngl.NEAREST)
     for name, arr in (("u_decal_colour", decals.colour), ("u_decal_aux", decals.aux)):
-        # half floats: llvmpipe filters 8-bit textures with 8-bit weights (~2/255 off torch)
+        # half floats: llvmpipe filters 8-bit textures with 8-bit weights, and in the skin
+        # shading the coverage scales the relief and gloss, whose highlight magnifies that
+        # error past 5/255 off glsynth.diff
         tex = ctx.texture_array((size, size, n), 4, _half_float_texels(arr.reshape(n * size, size, 4)),
                                 dtype="f2")
         tex.build_mipmaps()
@@ -374,7 +376,9 @@ class Renderer:
                 tex = self.ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(img).tobytes(),
                                        dtype="f2" if img.dtype == np.float16 else "f1")
                 tex.build_mipmaps()
-                tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+                # the nearest mip level, filtered bilinearly: half the texel reads of
+                # trilinear (six lookups a pixel), and a still image shows no level seams
+                tex.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
                 tex.repeat_x = tex.repeat_y = True
                 out[name] = tex
             out["params"] = self.ctx.texture((1, 1), 4, np.asarray(DEFAULT_PARAMS, np.uint8).tobytes())
