@@ -96,9 +96,7 @@ class SelectAndPaste(_Stage):
             log.info("lesions.per_body is 0: nothing to paste")
             return
         lesions = self._lesions  # a worker keeps it across bodies
-        p = cfg.paste
-        settings = PasteSettings(p.view_size, p.fov_deg, tuple(p.w), p.max_depth_change,
-                                 p.dilation, p.attempts, tuple(cfg.lesions.size), p.enlarge, p.overlap)
+        settings = PasteSettings.from_config(cfg)
         for body_id in tqdm(self.body_ids, desc="paste", unit="body"):
             folder = self.body_dir(body_id)
             if PastedTextures.exists(folder):
@@ -150,9 +148,7 @@ class BlendLesions(_Stage):
                                         b.pad)
             else:
                 from .blend import BlendSettings, DeepBlender  # torch: imported only to blend deep
-                settings = BlendSettings(b.method, b.steps, b.lr, b.optimizer, b.content, b.style,
-                                         b.gradient, b.tv, b.pad, b.perturb_deg, b.perturb_w,
-                                         threads=b.threads)
+                settings = BlendSettings.from_config(b)
                 if settings.needs_features and extractor is None:
                     from .features import make_extractor
                     extractor, self.feature_description = make_extractor(b.features, b.vgg_weights)
