@@ -28,7 +28,7 @@ import time
 
 import glsynth as gs
 from glsynth.config import load_config
-from glsynth.pipeline.stages import generate
+from glsynth.pipeline import generate
 
 
 ALL_TARGETS = "outputs=[rgb,semantic,instances,anatomy,depth,normals,uv,face_id]"

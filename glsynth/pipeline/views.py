@@ -160,7 +160,7 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
                      {**cam.surface, "normal": (np.asarray(normal) / np.linalg.norm(normal)).tolist(),
                       "view_direction": cam.surface["normal"]})
     eye = np.asarray(cam.eye)
-    sees = lambda p: np.linalg.norm(p - point) >= 1e-6 and _sees_point(  # noqa: E731
+    sees = lambda p: np.linalg.norm(p - point) >= 1e-6 and sees_point(  # noqa: E731
         renderer, mesh if drawn is None else drawn,
         Camera.look_at(p, point, fov_deg=5.0, width=16, height=16), point)
     if v.light_position == "paper":
@@ -212,7 +212,7 @@ def ambient_tint_from(background, strength) -> tuple:
     return tuple((1 + float(strength) * (c - 1)).tolist())
 
 
-def _sees_point(renderer, mesh, cam, point) -> bool:
+def sees_point(renderer, mesh, cam, point) -> bool:
     """True when the first surface along the camera's central ray is ``point``."""
     crop = cam.crop(cam.width // 2 - 1, cam.height // 2 - 1, 2, 2)
     return _centre_is(renderer.depth(mesh, crop), cam, point)

@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 
-def _threads(args):
+def set_threads(args):
+    """torch's CPU threads from ``--threads`` (the train, evaluate and sim2real commands)."""
     if args.threads:
         import torch
         torch.set_num_threads(args.threads)
@@ -10,7 +11,7 @@ def _threads(args):
 
 def cmd_train(args):
     from .trainer import train
-    _threads(args)
+    set_threads(args)
     if not args.data and not args.real_train:
         raise ValueError("give --data (synthetic) and/or --real-train (real) folders")
     ck = train(args.data or [], args.out, size=args.size, epochs=args.epochs,
@@ -32,7 +33,7 @@ def cmd_train(args):
 
 def cmd_evaluate(args):
     from .evaluate import evaluate
-    _threads(args)
+    set_threads(args)
     s = evaluate(args.model, args.real, args.layout, args.out, device=args.device, size=args.size,
                  grid_n=args.grid, progress=not args.quiet)
     print_summary(s)

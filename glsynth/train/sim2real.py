@@ -291,8 +291,8 @@ def register(sub):
 
 def cmd_sim2real(args):
     from ..config import load_config
-    from .cli import _threads, print_summary
-    _threads(args)
+    from .cli import print_summary, set_threads
+    set_threads(args)
     cfg = load_config(args.config, args.set or ())
     s = sim2real(cfg, args.real, args.layout, args.minutes, args.out, val=args.val,
                  val_layout=args.val_layout, resume=args.resume, data=args.data, device=args.device,
