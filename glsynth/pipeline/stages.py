@@ -329,8 +329,7 @@ class Generate2DViews(_Stage):
                                        cfg.outputs)
                 break
             except V.ViewRejected as exc:
-                reason = str(exc).split(" ")[0] if "<" in str(exc) else str(exc)
-                rejected[reason] = rejected.get(reason, 0) + 1
+                rejected[exc.reason.value] = rejected.get(exc.reason.value, 0) + 1
         else:
             log.warning("%s: no acceptable view in %d attempts; skipped", sid, v.attempts)
             return

@@ -1,6 +1,8 @@
 """``glsynth train`` and ``glsynth evaluate`` (registered by glsynth.cli)."""
 from __future__ import annotations
 
+from ..errors import InputError
+
 
 def set_threads(args):
     """torch's CPU threads from ``--threads`` (the train, evaluate and sim2real commands)."""
@@ -13,7 +15,7 @@ def cmd_train(args):
     from .trainer import train
     set_threads(args)
     if not args.data and not args.real_train:
-        raise ValueError("give --data (synthetic) and/or --real-train (real) folders")
+        raise InputError("give --data (synthetic) and/or --real-train (real) folders")
     ck = train(args.data or [], args.out, size=args.size, epochs=args.epochs,
                batch_size=args.batch_size, lr=args.lr, device=args.device,
                time_limit=args.time_limit, resume=args.resume, seed=args.seed, init=args.init,
