@@ -8,8 +8,9 @@
 import importlib
 
 from .camera import Camera
+from .errors import MeshError
 from .lighting import Material, PointLight
-from .mesh import Mesh, MeshError
+from .mesh import Mesh
 
 __version__ = "0.1.0"
 

@@ -1,6 +1,10 @@
 """Configuration: YAML validated into dataclasses, with ``key.sub=value`` overrides.
 
-Every error names the offending key and value (and the file). Ranges are [lo, hi] lists.
+Every key is declared once, below, with :func:`key`: its default, the values it accepts
+and a one-line description. ``Config()`` is glsynth's default configuration; validation
+reads the accepted values from the declarations, and ``configs/default.yaml`` and the
+key table of ``docs/config.md`` are generated from them (``glsynth.configdoc``). Every
+error names the offending key and value (and the file). Ranges are [lo, hi] lists.
 """
 from __future__ import annotations
 
@@ -9,12 +13,11 @@ import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable, NamedTuple
 
 import yaml
 
 from .errors import GlsynthError
-from .resources import config_dir
 
 
 class ConfigError(GlsynthError, ValueError):
@@ -32,138 +35,297 @@ OVERLAPS = ("lesion", "dilated")
 LIGHT_POSITIONS = ("near_camera", "paper")
 
 
+# ---- how a key is declared --------------------------------------------------------------
+def _num(x) -> str:
+    return f"{x:g}"
+
+
+@dataclass(frozen=True)
+class Interval:
+    """The numbers a key accepts: ``lo`` .. ``hi`` (None: unbounded), each end included
+    unless marked open."""
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def __contains__(self, x) -> bool:
+        return ((self.lo is None or (x > self.lo if self.lo_open else x >= self.lo)) and
+                (self.hi is None or (x < self.hi if self.hi_open else x <= self.hi)))
+
+    def __str__(self):
+        if self.hi is None:
+            return f"{'>' if self.lo_open else '>='} {_num(self.lo)}"
+        return (f"in {'(' if self.lo_open else '['}{_num(self.lo)}, {_num(self.hi)}"
+                f"{')' if self.hi_open else ']'}")
+
+
+def at_least(lo) -> Interval:
+    return Interval(lo)
+
+
+def above(lo) -> Interval:
+    return Interval(lo, lo_open=True)
+
+
+def between(lo, hi) -> Interval:
+    return Interval(lo, hi)
+
+
+class Rule(NamedTuple):
+    """A check no interval or list of choices expresses: ``test(value)`` is true for a
+    good value; ``allowed`` says what is accepted (after "must be" in errors, and in the
+    docs' table), or is a function that says it (to import what it names only then)."""
+    test: Callable[[Any], bool]
+    allowed: str | Callable[[], str]
+
+    def describe(self) -> str:
+        return self.allowed() if callable(self.allowed) else self.allowed
+
+
+@dataclass(frozen=True)
+class Accepts:
+    """What a key accepts: a number ``within`` an interval, a [low, high] ``pair``
+    within one, one of ``choices``, or whatever ``rule`` allows (any that are given)."""
+    within: Interval | None = None
+    pair: Interval | None = None
+    choices: tuple | None = None
+    rule: Rule | None = None
+
+    def describe(self) -> str:
+        parts = []
+        if self.within is not None:
+            parts.append(str(self.within))
+        if self.pair is not None:
+            parts.append(f"[low, high] {self.pair}")
+        if self.choices is not None:
+            parts.append("one of " + ", ".join(map(str, self.choices)))
+        if self.rule is not None:
+            parts.append(self.rule.describe())
+        return "; ".join(parts)
+
+
+def key(default, doc: str, *, within=None, pair=None, choices=None, rule=None):
+    """A config field: ``default`` (lists and dicts are copied for each instance), its
+    one-line ``doc`` and what it accepts (see :class:`Accepts`)."""
+    meta = {"doc": doc, "accepts": Accepts(within, pair, tuple(choices) if choices else None, rule)}
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda: copy.deepcopy(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def _presets():  # imported when needed: the procedural lesion code is slow to import
+    from .assets.morphology import PRESETS
+    return PRESETS
+
+
+def _known_presets(kinds) -> bool:
+    return all(k in _presets() for k in kinds)
+
+
+def _framing_weights(framing) -> bool:
+    return (all(k in FRAMINGS for k in framing) and
+            all(isinstance(x, (int, float)) and not isinstance(x, bool) and x >= 0
+                for x in framing.values()) and sum(framing.values()) > 0)
+
+
+def _jpeg_quality(q) -> bool:
+    return all(float(x).is_integer() for x in q) and (q == [0, 0] or q[0] >= 1)
+
+
+# ---- the keys -----------------------------------------------------------------------------
+# Config() is glsynth's default run: built-in bodies, procedural lesions and rooms, small
+# counts (a couple of minutes on 2 CPU cores once the body cache is warm), and the
+# realism additions switched on. configs/paper.yaml sets the DermSynth3D paper's values.
 @dataclass
 class BodiesConfig:
-    source: str = "builtin"           # 'builtin' or a folder of 3DBodyTex scans / meshes
-    count: int = 2
-    texture_size: int = 2048
-    fitzpatrick: list = field(default_factory=lambda: [1, 6])
-    poses: list = field(default_factory=lambda: ["a-pose", "arms-down", "slight-turn"])
+    """The bodies that lesions are pasted on and views are rendered of."""
+    source: str = key("builtin", "'builtin' (parametric bodies made by glsynth) or a folder of "
+                      "3DBodyTex scans / meshes, one folder per body")
+    count: int = key(2, "bodies in the run (from a folder: that many, spread over skin tone)",
+                     within=at_least(1))
+    texture_size: int = key(2048, "texels per side of a built-in body's texture",
+                            within=between(64, 8192))
+    fitzpatrick: list = key([1, 6], "Fitzpatrick skin types of built-in bodies (drawn per body)",
+                            pair=between(1, 6))
+    poses: list = key(["a-pose", "arms-down", "slight-turn", "arms-raised"],
+                      "poses of built-in bodies (drawn per body)",
+                      rule=Rule(bool, "a list of at least one pose"))
 
 
 @dataclass
 class LesionsConfig:
-    source: str = "procedural"        # 'procedural' or a folder
-    layout: str = "fitz17k"           # 'fitz17k' or 'pairs'
-    per_body: int = 2
-    colour_constancy: bool = True     # Shades of Gray on real lesion images (paper)
-    size: list = field(default_factory=lambda: [0.15, 0.4])  # lesion extent / view width
-    min_size: int = 16                # lesion images with a shorter side (px) are rejected
-    max_mask_fraction: float = 0.95   # masks covering more of their image are rejected
-    kinds: list = field(default_factory=list)  # procedural presets to use ([]: all)
-    resolution: int = 512             # grid cells per side of a procedural condition
-    decal_size: int = 1024            # pixels per side of each lesion's decal (0: none)
+    """The lesions pasted on each body: procedural conditions or real images with masks."""
+    source: str = key("procedural", "'procedural' or a folder of lesion images with masks (see layout)")
+    layout: str = key("fitz17k", "a lesion folder's layout: the Fitzpatrick17k annotations, or "
+                      "image + mask pairs", choices=("fitz17k", "pairs"))
+    per_body: int = key(3, "lesions placed per body (0: none, no paste or blend)", within=at_least(0))
+    colour_constancy: bool = key(True, "Shades of Gray colour constancy on real lesion images (paper)")
+    size: list = key([0.15, 0.4], "lesion extent / placement view width", pair=between(0.01, 1.5))
+    min_size: int = key(16, "lesion images with a shorter side (px) are rejected",
+                        within=between(1, 4096))
+    max_mask_fraction: float = key(0.95, "masks covering more of their image are rejected",
+                                   within=Interval(0, 1, lo_open=True))
+    kinds: list = key([], "procedural presets to use ([]: all)",
+                      rule=Rule(_known_presets, lambda: f"names from {sorted(_presets())}"))
+    resolution: int = key(512, "grid cells per side of a procedural condition",
+                          within=between(64, 4096))
+    decal_size: int = key(1024, "pixels per side of each lesion's decal, drawn over the body "
+                          "texture at the lesion's own resolution (0: no decals)",
+                          rule=Rule(lambda n: n == 0 or 64 <= n <= 4096, "0 or in [64, 4096]"))
 
 
 @dataclass
 class PasteConfig:
-    view_size: int = 512
-    fov_deg: float = 30.0
-    w: list = field(default_factory=lambda: [0.4, 0.6])
-    max_depth_change: float = 0.02   # appendix A threshold c
-    dilation: int = 9                 # pixels added around the lesion mask (a_xd)
-    attempts: int = 60                # locations tried per lesion before giving up
-    enlarge: bool = True              # false: a lesion never gets more view pixels than source pixels
-    overlap: str = "lesion"           # a new dilated lesion must not touch earlier lesions
-                                      # ('lesion') or their dilated regions ('dilated', the original)
+    """Where lesions go (paper appendix A): a view of each candidate place, kept when the
+    surface under the lesion is flat enough and free."""
+    view_size: int = key(512, "pixels per side of the placement view", within=between(32, 4096))
+    fov_deg: float = key(30.0, "vertical field of view of the placement view (degrees)",
+                         within=Interval(0, 170, lo_open=True, hi_open=True))
+    w: list = key([0.4, 0.6], "placement camera distance from the surface (m)",
+                  pair=between(1e-4, 1e4))
+    max_depth_change: float = key(0.02, "largest depth change under the lesion (appendix A's c, m)",
+                                  within=above(0))
+    dilation: int = key(9, "pixels added around the lesion mask (a_xd)", within=at_least(0))
+    attempts: int = key(60, "places tried per lesion before giving up", within=at_least(1))
+    enlarge: bool = key(True, "false: a lesion never gets more view pixels than source pixels")
+    overlap: str = key("lesion", "what a new dilated lesion must not touch: earlier lesions "
+                       "(lesion) or their dilated regions (dilated, the original)", choices=OVERLAPS)
+
+
+_WEIGHT = Interval(0, 1e12, hi_open=True)
 
 
 @dataclass
 class BlendConfig:
-    method: str = "deep"              # deep | poisson | paste
-    steps: int = 400
-    lr: float = 0.005
-    optimizer: str = "adam"           # adam | lbfgs
-    content: float = 2.0
-    style: float = 1e6
-    gradient: float = 1e5
-    tv: float = 1e-4
-    features: str = "auto"            # auto (VGG16 if weights found, else filters) | vgg16 | filters
-    vgg_weights: str | None = None
-    pad: int = 16                     # pixels around the lesion box where the loss is computed
-    perturb_deg: float = 4.0          # camera jitter per step (degrees around the surface point)
-    perturb_w: float = 0.1            # relative jitter of w per step
-    threads: int = 1                  # torch threads of the deep blend (its float sums depend on
-                                      # the count: a fixed count gives the same bytes for any workers)
+    """How pasted lesions are blended into the texture (paper section 3.2)."""
+    method: str = key("poisson", "poisson (log-albedo, exact, ~0.2 s per lesion), deep (the paper's "
+                      "loss; needs VGG16 weights to look right) or paste (keep the pasted texture)",
+                      choices=BLEND_METHODS)
+    steps: int = key(400, "deep: optimisation steps", within=at_least(0))
+    lr: float = key(0.005, "deep: learning rate", within=above(0))
+    optimizer: str = key("adam", "deep: optimiser", choices=("adam", "lbfgs"))
+    content: float = key(2.0, "deep: content loss weight", within=_WEIGHT)
+    style: float = key(1e6, "deep: style loss weight", within=_WEIGHT)
+    gradient: float = key(1e5, "deep: Laplacian gradient loss weight", within=_WEIGHT)
+    tv: float = key(1e-4, "deep: total variation weight", within=_WEIGHT)
+    features: str = key("auto", "deep: CNN features; auto is VGG16 when its weights are found "
+                        "locally, else the filter bank", choices=FEATURES)
+    vgg_weights: str | None = key(None, "deep: VGG16 weights file (null: look in the usual places)")
+    pad: int = key(16, "pixels around the lesion box where the loss is computed", within=at_least(0))
+    perturb_deg: float = key(4.0, "deep: camera jitter per step (degrees around the surface point)")
+    perturb_w: float = key(0.1, "deep: relative jitter of the camera distance per step")
+    threads: int = key(1, "torch threads of the deep blend (its float sums depend on the count: "
+                       "a fixed count gives the same bytes for any workers)", within=between(1, 1024))
+
+
+_LIGHT = between(0, 10)
 
 
 @dataclass
 class ViewsConfig:
-    per_body: int = 8
-    size: int = 512
-    fov_deg: float = 30.0
-    supersample: int = 1              # k x k shading samples per pixel (box filter)
-    multisample: int = 4              # MSAA samples per pixel: anti-aliased silhouettes, shaded once
-    w: list = field(default_factory=lambda: [0.1, 1.3])
-    lesion_bias: float = 0.7          # probability that a view is centred on a lesion
-    min_skin: float = 0.1
-    min_lesion: float = 0.0
-    ambient: list = field(default_factory=lambda: [0.2, 0.99])
-    diffuse: list = field(default_factory=lambda: [0.2, 0.99])
-    specular: list = field(default_factory=lambda: [0.0, 0.1])
-    material_specular: list = field(default_factory=lambda: [0.0, 0.05])
-    shininess: list = field(default_factory=lambda: [30.0, 60.0])
-    light_offset: list = field(default_factory=lambda: [0.0, 0.5])  # light distance from camera (m)
-    # near_camera: light_offset away in a random direction, views with a blocked light
-    # rejected; paper: DermSynth3D's, light_offset per axis away from the point, at the
-    # camera when blocked
-    light_position: str = "near_camera"
-    attempts: int = 50
-    # Richer lighting (defaults off: the paper's single light, Lambert diffuse).
-    wrap: list = field(default_factory=lambda: [0.0, 0.0])       # material wrap lighting
-    flash: float = 0.0                # probability of a flash light at the camera
-    shadows: bool = False             # soft shadows from the main (room) light
-    flash_diffuse: list = field(default_factory=lambda: [0.2, 0.6])
-    flash_specular: list = field(default_factory=lambda: [0.0, 0.1])
-    ambient_tint: float = 0.0         # 0..1: tint the ambient light by the background's mean colour
-    # Shading: "phong" (the paper's) or "skin" (linear-light skin reflectance with
-    # micro-relief and hair, shaders/skin.frag); skin material ranges:
-    shading: str = "phong"
-    roughness: list = field(default_factory=lambda: [0.3, 0.5])   # GGX roughness of dry skin
-    oil: list = field(default_factory=lambda: [0.2, 1.0])         # scales the body's oiliness map
-    relief: list = field(default_factory=lambda: [0.7, 1.3])      # scales the micro-relief
-    detail: bool = True               # micro-relief and hair (skin shading only)
-    # Framing: weights of the view kinds (views.py): "wild" (the paper's: a surface point
-    # or lesion at w), "closeup" (lesion-centred, near-perpendicular, the lesion filling
-    # closeup_fraction of the frame), "regional" (a body part fills the frame).
-    framing: dict = field(default_factory=lambda: {"wild": 1.0})
-    closeup_fraction: list = field(default_factory=lambda: [0.05, 0.7])  # lesion area / frame area
-    closeup_tilt: float = 25.0        # degrees: the camera within this angle of the normal
-    closeup_w: list = field(default_factory=lambda: [0.04, 0.6])   # close-up distance limits
-    closeup_flash: float = 0.6        # probability of a flash in a close-up
-    regional_fill: list = field(default_factory=lambda: [0.6, 1.2])  # part extent / frame width
+    """The annotated views rendered of each body: framing, camera, lights and shading."""
+    per_body: int = key(10, "views rendered per body", within=at_least(0))
+    size: int = key(512, "pixels per side of a view", within=between(32, 4096))
+    fov_deg: float = key(30.0, "vertical field of view (degrees)",
+                         within=Interval(0, 170, lo_open=True, hi_open=True))
+    supersample: int = key(1, "k x k shading samples per pixel (box filter; also smooths texture "
+                           "minification, at k^2 times the shading)", within=between(1, 8))
+    multisample: int = key(4, "MSAA samples per pixel: anti-aliased silhouettes, shaded once (0: off; "
+                           "the GL may support fewer: llvmpipe 4)", choices=(0, 1, 2, 4, 8, 16))
+    w: list = key([0.1, 1.3], "wild views: camera distance from the surface point (m)",
+                  pair=between(1e-4, 1e4))
+    lesion_bias: float = key(0.7, "probability that a wild view is centred on a lesion",
+                             within=between(0, 1))
+    min_skin: float = key(0.1, "views showing a smaller share of skin are rejected",
+                          within=between(0, 1))
+    min_lesion: float = key(0.0, "views showing a smaller share of lesion are rejected",
+                            within=between(0, 1))
+    ambient: list = key([0.2, 0.99], "room light: ambient intensity", pair=_LIGHT)
+    diffuse: list = key([0.2, 0.99], "room light: diffuse intensity", pair=_LIGHT)
+    specular: list = key([0.0, 0.1], "room light: specular intensity", pair=_LIGHT)
+    material_specular: list = key([0.0, 0.05], "phong: material specular", pair=_LIGHT)
+    shininess: list = key([30.0, 60.0], "phong: material shininess", pair=between(1e-3, 1e4))
+    light_offset: list = key([0.0, 0.5], "room light: distance from the camera (m)",
+                             pair=between(0, 1e3))
+    light_position: str = key("near_camera", "near_camera: light_offset away in a random direction, "
+                              "views with a blocked light rejected; paper: DermSynth3D's, light_offset "
+                              "per axis away from the point, at the camera when blocked",
+                              choices=LIGHT_POSITIONS)
+    attempts: int = key(50, "scenes tried per view before it is skipped", within=at_least(1))
+    wrap: list = key([0.0, 0.4], "wrap diffuse lighting (skin-like light bleeding; 0: Lambert)",
+                     pair=between(0, 1))
+    flash: float = key(0.3, "probability of a phone flash at the camera in a wild or regional view",
+                       within=between(0, 1))
+    shadows: bool = key(True, "soft shadows from the room light (shadow map); the paper has none")
+    flash_diffuse: list = key([0.2, 0.6], "flash: diffuse intensity", pair=_LIGHT)
+    flash_specular: list = key([0.0, 0.1], "flash: specular intensity", pair=_LIGHT)
+    ambient_tint: float = key(0.5, "tint the ambient light by the background's mean colour (0: none)",
+                              within=between(0, 1))
+    shading: str = key("skin", "skin: linear-light skin reflectance with micro-relief and hair "
+                       "(shaders/skin.frag); phong: the paper's", choices=SHADINGS)
+    roughness: list = key([0.45, 0.6], "skin: GGX roughness of dry skin", pair=between(0.02, 1))
+    oil: list = key([0.1, 0.7], "skin: scales the body's oiliness map", pair=between(0, 1))
+    relief: list = key([0.7, 1.3], "skin: scales the micro-relief", pair=between(0, 10))
+    detail: bool = key(True, "skin: micro-relief and hair")
+    framing: dict = key({"closeup": 0.6, "regional": 0.25, "wild": 0.15},
+                        "weights of the view kinds (pipeline/views.py): closeup (a lesion filling "
+                        "closeup_fraction of the frame), regional (a body part fills the frame), "
+                        "wild (the paper's: a surface point or lesion at distance w)",
+                        rule=Rule(_framing_weights, f"a mapping of some of {', '.join(FRAMINGS)} "
+                                  "to weights >= 0, not all 0"))
+    closeup_fraction: list = key([0.05, 0.7], "close-ups: lesion area / frame area",
+                                 pair=between(1e-4, 1))
+    closeup_tilt: float = key(25.0, "close-ups: the camera within this angle of the normal (degrees)",
+                              within=Interval(0, 90, hi_open=True))
+    closeup_w: list = key([0.04, 0.6], "close-ups: camera distance limits (m)",
+                          pair=between(1e-4, 1e4))
+    closeup_flash: float = key(0.6, "close-ups: probability of a flash", within=between(0, 1))
+    regional_fill: list = key([0.6, 1.2], "regional views: body part extent / frame width",
+                              pair=between(0.05, 10))
 
 
 @dataclass
 class PhotoConfig:
-    """Post-render camera model (glsynth/pipeline/photo.py). Every range [0, 0] (the
-    default) switches that effect off; ``enabled: false`` switches them all off."""
-    enabled: bool = False
-    aperture: list = field(default_factory=lambda: [0.0, 0.0])    # lens aperture diameter (scene units)
-    focus_jitter: float = 0.05        # relative error of the focus distance around the look-at point
-    max_coc: float = 12.0             # cap on the circle of confusion (px, diameter)
-    motion_blur: list = field(default_factory=lambda: [0.0, 0.0])  # shake kernel length (px)
-    shot_noise: list = field(default_factory=lambda: [0.0, 0.0])   # variance per unit linear signal
-    read_noise: list = field(default_factory=lambda: [0.0, 0.0])   # std dev, linear units
-    white_balance: list = field(default_factory=lambda: [0.0, 0.0])  # log2 red/blue gain shift (+ warm)
-    tint: list = field(default_factory=lambda: [0.0, 0.0])         # log2 green gain shift
-    exposure: list = field(default_factory=lambda: [0.0, 0.0])     # EV (stops)
-    vignetting: list = field(default_factory=lambda: [0.0, 0.0])   # light fall-off at the corners
-    chromatic_aberration: list = field(default_factory=lambda: [0.0, 0.0])  # R/B shift at the corner (px)
-    jpeg_quality: list = field(default_factory=lambda: [0, 0])     # [0, 0] = no JPEG; else 1..100
+    """Post-render camera model of a phone camera (glsynth/pipeline/photo.py; docs/photo.md
+    explains each range). It changes the RGB image only: labels stay the sharp truth. A
+    range [0, 0] switches that effect off; enabled: false switches them all off."""
+    enabled: bool = key(True, "apply the camera model")
+    aperture: list = key([0.0, 0.0025], "lens aperture diameter (m): phone main cameras ~1.5-2.5 mm",
+                         pair=between(0, 1))
+    focus_jitter: float = key(0.05, "relative error of the focus distance around the look-at point",
+                              within=Interval(0, 1, hi_open=True))
+    max_coc: float = key(12.0, "cap on the circle of confusion (px, diameter)",
+                         within=Interval(0, 64, lo_open=True))
+    motion_blur: list = key([0.0, 1.5], "hand-shake streak length (px)", pair=between(0, 64))
+    shot_noise: list = key([0.0001, 0.0015], "variance per unit linear signal (after the phone's "
+                           "denoiser)", pair=between(0, 1))
+    read_noise: list = key([0.0005, 0.003], "std dev, linear units", pair=between(0, 1))
+    white_balance: list = key([-0.15, 0.15], "log2(R gain / B gain) shift (+ warm): about +-600 K "
+                              "around 5500 K", pair=between(-2, 2))
+    tint: list = key([-0.03, 0.03], "log2 G gain shift", pair=between(-2, 2))
+    exposure: list = key([-0.3, 0.3], "exposure error (EV, stops)", pair=between(-4, 4))
+    vignetting: list = key([0.0, 0.25], "relative light fall-off at the corners", pair=between(0, 1))
+    chromatic_aberration: list = key([0.0, 0.6], "R/B shift at the corners (px)", pair=between(0, 16))
+    jpeg_quality: list = key([70, 95], "JPEG quality ([0, 0]: no JPEG)", pair=between(0, 100),
+                             rule=Rule(_jpeg_quality, "[0, 0] or integers in [1, 100]"))
 
 
 @dataclass
 class BackgroundsConfig:
-    source: str = "procedural"
-    count: int = 16                   # procedural backgrounds to make
-    blur: list = field(default_factory=lambda: [0.0, 3.0])
-    clinical: float = 0.0             # share of procedural backgrounds that are clinical backdrops
+    """What the views are composited over."""
+    source: str = key("procedural", "'procedural' or a folder of background images")
+    count: int = key(24, "procedural backgrounds to make", within=at_least(1))
+    blur: list = key([0.0, 3.0], "Gaussian blur of the background (px)", pair=between(0, 50))
+    clinical: float = key(0.6, "share of procedural backgrounds that are clinical backdrops (drapes, "
+                          "sheets, couch paper, plain walls, clothing; else rooms)", within=between(0, 1))
 
 
 @dataclass
 class Config:
-    seed: int = 0
+    """A whole run: its seed, the sections below and the layers it writes."""
+    seed: int = key(0, "seed of every random choice (the same seed and config give the same bytes)",
+                    within=at_least(0))
     bodies: BodiesConfig = field(default_factory=BodiesConfig)
     lesions: LesionsConfig = field(default_factory=LesionsConfig)
     paste: PasteConfig = field(default_factory=PasteConfig)
@@ -171,16 +333,47 @@ class Config:
     views: ViewsConfig = field(default_factory=ViewsConfig)
     backgrounds: BackgroundsConfig = field(default_factory=BackgroundsConfig)
     photo: PhotoConfig = field(default_factory=PhotoConfig)
-    outputs: list = field(default_factory=lambda: list(DEFAULT_OUTPUTS))
+    outputs: list = key(list(DEFAULT_OUTPUTS), "layers written per view (normals, uv and face_id: "
+                        "extra 3D outputs, on request)",
+                        rule=Rule(lambda o: bool(o) and all(x in OUTPUTS for x in o),
+                                  f"a non-empty subset of {list(OUTPUTS)}"))
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
 
+def section_type(f: dataclasses.Field):
+    """The dataclass of a section field (``Config.bodies``...), else None."""
+    factory = f.default_factory
+    return factory if isinstance(factory, type) and dataclasses.is_dataclass(factory) else None
+
+
+def keys(cls=Config, prefix=""):
+    """(dotted name, field) of every key of ``cls``, sections expanded, in declaration
+    order; ``field.metadata`` holds its ``doc`` and ``accepts``."""
+    for f in dataclasses.fields(cls):
+        section = section_type(f)
+        if section is not None:
+            yield from keys(section, f"{prefix}{f.name}.")
+        else:
+            yield f"{prefix}{f.name}", f
+
+
+# ---- loading and validation ------------------------------------------------------------------
 def load_config(path=None, overrides=()) -> Config:
-    """Read a YAML config (default: the embedded configs/default.yaml), apply
-    ``key.sub=value`` overrides (values parsed as YAML), validate."""
-    path = os.fspath(path) if path is not None else str(config_dir() / "default.yaml")
+    """Read a YAML config (default: none, glsynth's defaults, which configs/default.yaml
+    lists), apply ``key.sub=value`` overrides (values parsed as YAML), validate. Keys a
+    file leaves out keep their defaults."""
+    if path is None:
+        path, raw = "default config", {}
+    else:
+        path, raw = os.fspath(path), _read_yaml(os.fspath(path))
+    for item in overrides:
+        _apply_override(raw, item)
+    return from_dict(raw, source=path)
+
+
+def _read_yaml(path) -> dict:
     try:
         with open(path, encoding="utf-8") as fh:
             raw = yaml.safe_load(fh) or {}
@@ -197,9 +390,7 @@ def load_config(path=None, overrides=()) -> Config:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from None
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: top level must be a mapping, got {type(raw).__name__}")
-    for item in overrides:
-        _apply_override(raw, item)
-    return from_dict(raw, source=path)
+    return raw
 
 
 def _apply_override(raw: dict, item: str):
@@ -229,20 +420,22 @@ def _build(cls, raw, prefix, source):
         raise ConfigError(f"{source}: {prefix or 'top level'} must be a mapping, got {raw!r}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     kwargs = {}
-    for key, value in raw.items():
-        name = f"{prefix}{key}"
-        if key not in fields:
-            raise ConfigError(f"{source}: unknown key {name!r} (known: {', '.join(sorted(fields))})")
-        default = fields[key].default_factory() if fields[key].default_factory is not dataclasses.MISSING \
-            else fields[key].default
-        if dataclasses.is_dataclass(default):
-            kwargs[key] = _build(type(default), value, f"{name}.", source)
+    for name, value in raw.items():
+        dotted = f"{prefix}{name}"
+        if name not in fields:
+            raise ConfigError(f"{source}: unknown key {dotted!r} (known: {', '.join(sorted(fields))})")
+        f = fields[name]
+        section = section_type(f)
+        if section is not None:
+            kwargs[name] = _build(section, value, f"{dotted}.", source)
         else:
-            kwargs[key] = _coerce(value, default, name, source)
+            default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+            kwargs[name] = _coerce(value, default, dotted, source)
     return cls(**kwargs)
 
 
 def _coerce(value, default, name, source) -> Any:
+    """``value`` as the type of the key's default (an int is a float where one is due)."""
     def bad(expected):
         return ConfigError(f"{source}: {name} must be {expected}, got {value!r}")
     if isinstance(default, bool):
@@ -272,16 +465,6 @@ def _coerce(value, default, name, source) -> Any:
     return value
 
 
-def _range(cfg_value, name, source, lo=None, hi=None, integer=False):
-    v = cfg_value
-    if len(v) != 2 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
-        raise ConfigError(f"{source}: {name} must be a [low, high] pair of numbers, got {v!r}")
-    if v[0] > v[1]:
-        raise ConfigError(f"{source}: {name} low > high in {v!r}")
-    if (lo is not None and v[0] < lo) or (hi is not None and v[1] > hi):
-        raise ConfigError(f"{source}: {name} must lie in [{lo}, {hi}], got {v!r}")
-
-
 def _check_finite(value, name, source):
     """NaN or infinity anywhere (a number, or inside a list) is an error naming the key."""
     if isinstance(value, dict):
@@ -297,104 +480,32 @@ def _check_finite(value, name, source):
         raise ConfigError(f"{source}: {name} must be a finite number, got {value!r}")
 
 
+def _problem(accepts: Accepts, value) -> str | None:
+    """What is wrong with ``value`` for a key that ``accepts`` it, or None."""
+    if accepts.pair is not None:
+        if len(value) != 2 or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                      for x in value):
+            return "must be a [low, high] pair of numbers"
+        if value[0] > value[1]:
+            return "must have low <= high"
+        if value[0] not in accepts.pair or value[1] not in accepts.pair:
+            return f"must lie {accepts.pair}"
+    if accepts.within is not None and value not in accepts.within:
+        return f"must be {accepts.within}"
+    if accepts.choices is not None and value not in accepts.choices:
+        return "must be one of " + ", ".join(map(repr, accepts.choices))
+    if accepts.rule is not None and not accepts.rule.test(value):
+        return f"must be {accepts.rule.describe()}"
+    return None
+
+
 def validate(cfg: Config, source="config"):
-    def need(cond, name, value, what):
-        if not cond:
-            raise ConfigError(f"{source}: {name} {what}, got {value!r}")
+    """Raise ConfigError naming the first key whose value its declaration does not accept."""
     _check_finite(cfg.to_dict(), "", source)
-    need(cfg.seed >= 0, "seed", cfg.seed, "must be >= 0")
-    b = cfg.bodies
-    need(b.count >= 1, "bodies.count", b.count, "must be >= 1")
-    need(64 <= b.texture_size <= 8192, "bodies.texture_size", b.texture_size, "must be in [64, 8192]")
-    _range(b.fitzpatrick, "bodies.fitzpatrick", source, 1, 6)
-    need(bool(b.poses), "bodies.poses", b.poses, "must list at least one pose")
-    le = cfg.lesions
-    need(le.layout in ("fitz17k", "pairs"), "lesions.layout", le.layout, "must be 'fitz17k' or 'pairs'")
-    need(le.per_body >= 0, "lesions.per_body", le.per_body, "must be >= 0")
-    from .assets.morphology import PRESETS
-    bad_kinds = [k for k in le.kinds if k not in PRESETS]
-    need(not bad_kinds, "lesions.kinds", le.kinds, f"must name presets from {sorted(PRESETS)}")
-    need(64 <= le.resolution <= 4096, "lesions.resolution", le.resolution, "must be in [64, 4096]")
-    need(le.decal_size == 0 or 64 <= le.decal_size <= 4096, "lesions.decal_size", le.decal_size,
-         "must be 0 (no decals) or in [64, 4096]")
-    _range(le.size, "lesions.size", source, 0.01, 1.5)
-    need(1 <= le.min_size <= 4096, "lesions.min_size", le.min_size, "must be in [1, 4096] pixels")
-    need(0 < le.max_mask_fraction <= 1, "lesions.max_mask_fraction", le.max_mask_fraction,
-         "must be in (0, 1]")
-    p = cfg.paste
-    need(32 <= p.view_size <= 4096, "paste.view_size", p.view_size, "must be in [32, 4096]")
-    need(0 < p.fov_deg < 170, "paste.fov_deg", p.fov_deg, "must be in (0, 170)")
-    _range(p.w, "paste.w", source, 1e-4, 1e4)
-    need(p.max_depth_change > 0, "paste.max_depth_change", p.max_depth_change, "must be > 0")
-    need(p.dilation >= 0, "paste.dilation", p.dilation, "must be >= 0")
-    need(p.attempts >= 1, "paste.attempts", p.attempts, "must be >= 1")
-    need(p.overlap in OVERLAPS, "paste.overlap", p.overlap, f"must be one of {OVERLAPS}")
-    bl = cfg.blend
-    need(bl.method in BLEND_METHODS, "blend.method", bl.method, f"must be one of {BLEND_METHODS}")
-    need(bl.steps >= 0, "blend.steps", bl.steps, "must be >= 0")
-    need(bl.lr > 0, "blend.lr", bl.lr, "must be > 0")
-    need(bl.optimizer in ("adam", "lbfgs"), "blend.optimizer", bl.optimizer, "must be 'adam' or 'lbfgs'")
-    for k in ("content", "style", "gradient", "tv"):
-        v = getattr(bl, k)
-        need(0 <= v < 1e12, f"blend.{k}", v, "must be in [0, 1e12)")
-    need(bl.features in FEATURES, "blend.features", bl.features, f"must be one of {FEATURES}")
-    need(bl.pad >= 0, "blend.pad", bl.pad, "must be >= 0")
-    need(1 <= bl.threads <= 1024, "blend.threads", bl.threads, "must be in [1, 1024]")
-    v = cfg.views
-    need(v.per_body >= 0, "views.per_body", v.per_body, "must be >= 0")
-    need(32 <= v.size <= 4096, "views.size", v.size, "must be in [32, 4096]")
-    need(1 <= v.supersample <= 8, "views.supersample", v.supersample, "must be in [1, 8]")
-    need(v.multisample in (0, 1, 2, 4, 8, 16), "views.multisample", v.multisample,
-         "must be 0 (off), 1, 2, 4, 8 or 16 (the GL may support fewer: llvmpipe 4)")
-    need(0 < v.fov_deg < 170, "views.fov_deg", v.fov_deg, "must be in (0, 170)")
-    _range(v.w, "views.w", source, 1e-4, 1e4)
-    need(0 <= v.lesion_bias <= 1, "views.lesion_bias", v.lesion_bias, "must be in [0, 1]")
-    need(0 <= v.min_skin <= 1, "views.min_skin", v.min_skin, "must be in [0, 1]")
-    need(0 <= v.min_lesion <= 1, "views.min_lesion", v.min_lesion, "must be in [0, 1]")
-    for k in ("ambient", "diffuse", "specular", "material_specular"):
-        _range(getattr(v, k), f"views.{k}", source, 0, 10)
-    _range(v.shininess, "views.shininess", source, 1e-3, 1e4)
-    _range(v.light_offset, "views.light_offset", source, 0, 1e3)
-    need(v.light_position in LIGHT_POSITIONS, "views.light_position", v.light_position,
-         f"must be one of {LIGHT_POSITIONS}")
-    need(v.attempts >= 1, "views.attempts", v.attempts, "must be >= 1")
-    _range(v.wrap, "views.wrap", source, 0, 1)
-    need(0 <= v.flash <= 1, "views.flash", v.flash, "must be in [0, 1]")
-    _range(v.flash_diffuse, "views.flash_diffuse", source, 0, 10)
-    _range(v.flash_specular, "views.flash_specular", source, 0, 10)
-    need(0 <= v.ambient_tint <= 1, "views.ambient_tint", v.ambient_tint, "must be in [0, 1]")
-    need(v.shading in SHADINGS, "views.shading", v.shading, f"must be one of {SHADINGS}")
-    _range(v.roughness, "views.roughness", source, 0.02, 1)
-    _range(v.oil, "views.oil", source, 0, 1)
-    _range(v.relief, "views.relief", source, 0, 10)
-    bad_kinds = [k for k in v.framing if k not in FRAMINGS]
-    need(not bad_kinds and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x >= 0
-                               for x in v.framing.values()) and sum(v.framing.values()) > 0,
-         "views.framing", v.framing, f"must map some of {FRAMINGS} to weights >= 0 (not all 0)")
-    _range(v.closeup_fraction, "views.closeup_fraction", source, 1e-4, 1)
-    need(0 <= v.closeup_tilt < 90, "views.closeup_tilt", v.closeup_tilt, "must be in [0, 90)")
-    _range(v.closeup_w, "views.closeup_w", source, 1e-4, 1e4)
-    need(0 <= v.closeup_flash <= 1, "views.closeup_flash", v.closeup_flash, "must be in [0, 1]")
-    _range(v.regional_fill, "views.regional_fill", source, 0.05, 10)
-    ph = cfg.photo
-    _range(ph.aperture, "photo.aperture", source, 0, 1)
-    need(0 <= ph.focus_jitter < 1, "photo.focus_jitter", ph.focus_jitter, "must be in [0, 1)")
-    need(0 < ph.max_coc <= 64, "photo.max_coc", ph.max_coc, "must be in (0, 64]")
-    _range(ph.motion_blur, "photo.motion_blur", source, 0, 64)
-    _range(ph.shot_noise, "photo.shot_noise", source, 0, 1)
-    _range(ph.read_noise, "photo.read_noise", source, 0, 1)
-    _range(ph.white_balance, "photo.white_balance", source, -2, 2)
-    _range(ph.tint, "photo.tint", source, -2, 2)
-    _range(ph.exposure, "photo.exposure", source, -4, 4)
-    _range(ph.vignetting, "photo.vignetting", source, 0, 1)
-    _range(ph.chromatic_aberration, "photo.chromatic_aberration", source, 0, 16)
-    q = ph.jpeg_quality
-    _range(q, "photo.jpeg_quality", source, 0, 100)
-    need(all(float(x).is_integer() for x in q) and (q == [0, 0] or q[0] >= 1), "photo.jpeg_quality", q,
-         "must be [0, 0] (no JPEG) or integers in [1, 100]")
-    _range(cfg.backgrounds.blur, "backgrounds.blur", source, 0, 50)
-    need(cfg.backgrounds.count >= 1, "backgrounds.count", cfg.backgrounds.count, "must be >= 1")
-    need(0 <= cfg.backgrounds.clinical <= 1, "backgrounds.clinical", cfg.backgrounds.clinical,
-         "must be in [0, 1]")
-    bad = [o for o in cfg.outputs if o not in OUTPUTS]
-    need(not bad and cfg.outputs, "outputs", cfg.outputs, f"must be a non-empty subset of {list(OUTPUTS)}")
+    for name, f in keys():
+        value = cfg
+        for part in name.split("."):
+            value = getattr(value, part)
+        problem = _problem(f.metadata["accepts"], value)
+        if problem is not None:
+            raise ConfigError(f"{source}: {name} {problem}, got {value!r}")

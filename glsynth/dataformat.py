@@ -118,6 +118,20 @@ def lights_record(lights, kinds=("room", "flash")) -> list:
     return [{**light.to_dict(), "kind": kind} for light, kind in zip(lights, kinds)]
 
 
+def view_record(sample_id, size, scene, *, attempts, ambient_tint, photo, body, lesions, nevi,
+                background, fractions) -> dict:
+    """The record of a rendered view: ``scene`` (a pipeline.views.ViewScene) gives the
+    camera, lights and material; ``ambient_tint`` is the RGB tint or None; the rest are
+    stored as given (plain JSON values)."""
+    return {"id": sample_id, "width": size, "height": size, "attempts": attempts,
+            "camera": camera_record(scene.camera, centre=scene.centre, framing=scene.framing),
+            "light": scene.light.to_dict(), "material": scene.material.to_dict(),
+            "lights": lights_record(scene.lights),
+            "ambient_tint": list(ambient_tint) if ambient_tint is not None else None,
+            "photo": photo, "body": body, "lesions": lesions, "nevi": nevi,
+            "background": background, "fractions": fractions, "box_convention": BOX_CONVENTION}
+
+
 def camera_from_record(record: dict):
     """The Camera of a record (or of a bare ``Camera.to_dict()`` dict)."""
     from .camera import Camera

@@ -21,6 +21,12 @@ class InputError(GlsynthError, ValueError):
     """An argument or a file's content that glsynth cannot use."""
 
 
+class MeshError(InputError):
+    """A mesh (or a mesh file) is unusable; the message names the file and the problem.
+    Here, not in ``glsynth.mesh``, because the mesh file readers (``glsynth.io.meshfile``)
+    raise it too, and ``Mesh.load`` calls them."""
+
+
 class ModelFileError(InputError):
     """A model or checkpoint file is unreadable, not glsynth's, or holds more than plain
     tensors and Python values (glsynth never runs code from a model file)."""

@@ -14,13 +14,11 @@ from functools import cached_property
 
 import numpy as np
 
-from .errors import InputError
+from .errors import MeshError
+
+__all__ = ["Mesh", "MeshError", "SkinSurface"]
 
 log = logging.getLogger(__name__)
-
-
-class MeshError(InputError):
-    """A mesh (or a mesh file) is unusable; the message names the file and the problem."""
 
 
 @dataclass(frozen=True)

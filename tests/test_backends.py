@@ -23,6 +23,29 @@ def test_renderer_suite_passes_under_osmesa():
     assert " passed" in proc.stdout
 
 
+@pytest.mark.parametrize("backend", ["egl", "osmesa"])
+def test_contexts_come_from_moderngls_public_api(backend):
+    """Each backend's context is ``moderngl.create_context(context=loader)``: the loader
+    stays in ``ctx.extra``, where UnlockedGL finds its GL functions. In a process of its
+    own (one backend per process, see gl_context.py)."""
+    script = f"""
+from glsynth.gl.context import LOADER_KEY, UnlockedGL, create_context
+ctx = create_context({backend!r})
+assert ctx.version_code >= 330 and UnlockedGL(ctx).available
+assert hasattr(ctx.extra[LOADER_KEY], "load_opengl_function")
+fbo = ctx.simple_framebuffer((4, 4))
+fbo.use()
+fbo.clear(0.0, 1.0, 0.0, 1.0)
+assert fbo.read(components=3)[:3] == bytes([0, 255, 0]) and ctx.error == "GL_NO_ERROR"
+ctx.release()
+print("ok")
+"""
+    env = dict(os.environ, GLSYNTH_GL_BACKEND=backend, PYOPENGL_PLATFORM=backend)
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stdout + proc.stderr[-3000:]
+
+
 def test_unknown_backend_is_named():
     with pytest.raises(GLBackendError, match="unknown GL backend 'vulkan'"):
         create_context("vulkan")

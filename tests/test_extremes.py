@@ -658,8 +658,9 @@ def test_views_whose_camera_does_not_see_its_point_are_rejected(small_scene):
                                        ["rgb", "semantic"])
     for point in (target + 0.05 * forward, target - 0.05 * forward):  # behind / before the surface
         hidden = V.ViewScene(cam, gs.PointLight(cam.eye), gs.Material(), "surface", point=point)
-        with pytest.raises(V.ViewRejected, match="hidden"):
+        with pytest.raises(V.ViewRejected, match="hidden") as info:
             V.render_view(sc.r, sc.body, sc.body.mesh, sc.pasted.instances, None, hidden, v, ["semantic"])
+        assert info.value.reason is V.Rejection.POINT_HIDDEN
 
 
 def test_views_of_a_body_without_skin_give_up_after_the_attempt_bound(tmp_path, monkeypatch, small_scene):
@@ -667,6 +668,7 @@ def test_views_of_a_body_without_skin_give_up_after_the_attempt_bound(tmp_path, 
     tries and nothing is written, instead of retrying forever."""
     import glsynth.pipeline.stages as stages
     from glsynth.config import load_config
+    from glsynth.pipeline import views as V
     body = _sheet(np.random.default_rng(4), nonskin=1)
     monkeypatch.setattr(stages, "load_body", lambda cfg, body_id: body)
     cfg = load_config(None, TINY + ["lesions.per_body=0", "views.attempts=3", "views.w=[0.3, 0.5]"])
@@ -675,7 +677,29 @@ def test_views_of_a_body_without_skin_give_up_after_the_attempt_bound(tmp_path, 
     rejected = stage.synthesize_views(progress=False)
     assert time.perf_counter() - t0 < 60
     assert sum(rejected.values()) == 2 * 3, rejected
+    assert "skin" in rejected and set(rejected) <= {r.value for r in V.Rejection}, rejected
     assert not (tmp_path / "targets").exists() or not os.listdir(tmp_path / "targets")
+
+
+def test_rejections_are_counted_by_their_reason_not_their_message(tmp_path, monkeypatch, small_scene):
+    """The count's key is the exception's reason code, whatever its message says."""
+    import glsynth.pipeline.stages as stages
+    from glsynth.config import load_config
+    from glsynth.errors import GlsynthError
+    from glsynth.pipeline import views as V
+    sheet = _sheet(np.random.default_rng(4))
+    monkeypatch.setattr(stages, "load_body", lambda cfg, body_id: sheet)
+    reasons = iter([V.Rejection.TOO_LITTLE_LESION, V.Rejection.LIGHT_BLOCKED] * 10)
+
+    def reject(*a, **k):
+        reason = next(reasons)
+        raise V.ViewRejected(reason, "0.010 < views.min_lesion 0.5 (see docs < here)")
+    monkeypatch.setattr(stages.V, "sample_scene", reject)
+    cfg = load_config(None, TINY + ["lesions.per_body=0", "views.attempts=2"])  # 2 views
+    rejected = stages.Generate2DViews(cfg, tmp_path, renderer=small_scene.r).synthesize_views(progress=False)
+    assert rejected == {"lesion": 2, "light blocked by the body": 2}
+    err = V.ViewRejected(V.Rejection.TOO_LITTLE_SKIN, "0.02 < views.min_skin 0.1")
+    assert isinstance(err, GlsynthError) and str(err) == "skin: 0.02 < views.min_skin 0.1"
 
 
 def test_kill_during_second_body_views_then_resume(tmp_path):

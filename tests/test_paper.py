@@ -2,6 +2,7 @@
 views not biased towards lesions, the original's light placement, deep blending at the
 paper's weights, lesions never drawn above their source's resolution, and lesions kept
 apart dilated region against dilated region."""
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -10,7 +11,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 import glsynth as gs
-from glsynth.config import ConfigError, ViewsConfig, load_config
+from glsynth.config import ConfigError, load_config
 from glsynth.pipeline import views as V
 from glsynth.pipeline.bodies import TexelGeometry
 from glsynth.pipeline.paste import PasteSettings, Paster, paste_lesions
@@ -51,6 +52,8 @@ def test_paper_preset_has_the_papers_settings():
             v.shininess, v.min_skin) == (512, 30.0, [0.1, 1.3], [0.2, 0.99], [0.2, 0.99], [0.0, 0.1],
                                          [0.0, 0.05], [30.0, 60.0], 0.1)
     assert v.flash == 0 and not v.shadows and v.wrap == [0.0, 0.0] and not cfg.photo.enabled
+    # the paper's views and shading, none of glsynth's additions
+    assert v.framing == {"wild": 1.0} and v.shading == "phong" and v.ambient_tint == 0
     assert "nevi" in cfg.outputs
 
 
@@ -114,7 +117,7 @@ def test_paper_light_placement(renderer):
     mesh = gs.Mesh(np.r_[floor.vertices, roof_v], np.r_[floor.faces, roof.faces + 4],
                    uvs=np.r_[floor.uvs, roof.uvs], texture=floor.texture, name="floor+roof")
     body = SimpleNamespace(mesh=mesh)
-    v = ViewsConfig(size=64, w=[w, w], light_position="paper", light_offset=[0.0, 2.0])
+    v = dataclasses.replace(load_config(config_dir() / "paper.yaml").views, size=64, w=[w, w])
     at_camera = moved = 0
     for seed in range(24):
         # a surface point on the floor under the roof, normal +Z

@@ -34,10 +34,9 @@ def _scene(rng, h=96, w=128):
 
 
 def _cfg(**ranges):
-    pc = PhotoConfig(enabled=True)
-    for k, v in ranges.items():
-        setattr(pc, k, v)
-    return pc
+    """The camera model on with every effect off ([0, 0]) but those in ``ranges``."""
+    off = {k: [0, 0] for k, v in vars(PhotoConfig()).items() if isinstance(v, list)}
+    return PhotoConfig(**{**off, "enabled": True, **ranges})
 
 
 @pytest.mark.parametrize("effect", sorted(RANGES))
@@ -58,8 +57,9 @@ def test_each_effect_zero_is_identity_nonzero_changes(effect, rng):
 
 def test_disabled_and_all_zero_are_identity(rng):
     img, depth = _scene(rng)
-    assert photo.sample_params(PhotoConfig(), rng_for(0, "photo"), 1.0) == {"enabled": False, "effects": {}}
-    p = photo.sample_params(PhotoConfig(enabled=True), rng_for(0, "photo"), 1.0)
+    assert photo.sample_params(PhotoConfig(enabled=False), rng_for(0, "photo"), 1.0) == \
+        {"enabled": False, "effects": {}}
+    p = photo.sample_params(_cfg(), rng_for(0, "photo"), 1.0)
     assert photo.apply(img, p, depth) is img
     # the defaults of configs/default.yaml switch every effect on
     pc = load_config().photo

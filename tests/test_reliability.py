@@ -81,11 +81,13 @@ def _one_line_errors(tmp_path):
                                    "--layout", "pairs", "--out", out], "random.pt: not a torch"),
         "empty model": (["evaluate", "--model", str(tmp_path / "empty.pt"), "--real", out,
                          "--layout", "pairs", "--out", out], "empty.pt: not a readable torch"),
+        "train without data": (["train", "--out", str(tmp_path / "m.pt")], "give --data"),
     }
 
 
 @pytest.mark.parametrize("case", ["config is a folder", "config not UTF-8", "out under a file",
-                                  "out is a file", "model of random bytes", "empty model"])
+                                  "out is a file", "model of random bytes", "empty model",
+                                  "train without data"])
 def test_expected_failures_are_one_line(tmp_path, case):
     argv, named = _one_line_errors(tmp_path)[case]
     rc, err = _run_main(argv)

@@ -332,6 +332,31 @@ def test_supersampled_rgb_and_alpha(renderer, rng):
     assert np.isfinite(four["rgb"]).all()
 
 
+def test_framebuffers_and_programs_follow_their_typed_keys(renderer, rng):
+    """A lean G-buffer (no barycentrics or UV) with labels has face id, depth and the
+    label target; the MSAA framebuffer has the samples asked for; each key compiles and
+    allocates its own program and framebuffer."""
+    from glsynth.gl.renderer import GBuffer, GBufferProgram, Msaa, PhongProgram, Target
+    mesh = sphere(rng)
+    cam = gs.Camera.look_at((0.1, 0.2, 2.0), (0, 0, 0), width=renderer.width, height=renderer.height)
+    maps = {"a": rng.integers(0, 9, size=(8, 8)).astype(np.uint16)}
+    renderer.render(mesh, cam, passes=("gbuffer", "labels"), label_textures=maps, buffers=("depth", "a"))
+    renderer.render(mesh, cam, passes=("labels",), label_textures=maps)
+    renderer.render(mesh, cam, passes=("rgb",), multisample=4, lights=[gs.PointLight(cam.eye)] * 2)
+    size = (renderer.width, renderer.height)
+    lean = renderer._fbos[(GBuffer(labels=True, bary_uv=False), *size)]
+    assert [a.dtype for a in lean.color_attachments] == ["i4", "f4", "u2"]
+    full = renderer._fbo(GBuffer(labels=True), *size)
+    assert [a.dtype for a in full.color_attachments] == ["i4", "f4", "f4", "f4", "u2"]
+    assert renderer._fbos[(Msaa(4), *size)].color_attachments[0].samples == 4
+    assert (Target.LABELS, *size) in renderer._fbos and (Target.RGB, *size) in renderer._fbos
+    programs = set(renderer.programs)
+    assert PhongProgram(2, shadows=False) in programs
+    assert any(isinstance(k, GBufferProgram) and k.target is None for k in programs)        # labels alone
+    assert any(isinstance(k, GBufferProgram) and k.target == GBuffer(True, False) for k in programs)
+    assert not any(isinstance(k, str) and k not in ("uvspace", "shadow") for k in programs)
+
+
 def test_multisampled_rgb_and_alpha(renderer, rng):
     import cv2
     mesh = sphere(rng) if rng.random() < 0.5 else box(rng)

@@ -3,6 +3,7 @@ import numpy as np
 import trimesh
 
 import glsynth as gs
+from glsynth.gl.renderer import Target
 from shapes import random_texture
 
 
@@ -51,9 +52,9 @@ def test_blocked_light_darkens_only_the_shadowed_region(renderer, rng):
 def test_shadows_off_computes_nothing(renderer, rng):
     mesh = _scene(rng)
     cam = gs.Camera.look_at((0.0, 0.0, 2.0), (0, 0, 0), width=renderer.width, height=renderer.height)
-    before = {k for k in renderer._fbos if k[0] == "shadow"}
+    before = {k for k in renderer._fbos if k[0] is Target.SHADOW}
     a = renderer.render(mesh, cam, passes=("rgb",), lights=[gs.PointLight((0.5, 0, 1.5))])
-    assert {k for k in renderer._fbos if k[0] == "shadow"} == before
+    assert {k for k in renderer._fbos if k[0] is Target.SHADOW} == before
     # and the image is the plain Phong image (no leftover state from a shadowed render)
     renderer.render(mesh, cam, passes=("rgb",), lights=[gs.PointLight((0.5, 0, 1.5))], shadows=True)
     b = renderer.render(mesh, cam, passes=("rgb",), lights=[gs.PointLight((0.5, 0, 1.5))])

@@ -32,8 +32,8 @@ import time
 import glsynth as gs
 from glsynth.config import load_config
 from glsynth.io.images import write_png
+from glsynth.pipeline import generate
 from glsynth.pipeline.runlock import FINGERPRINT, fingerprint
-from glsynth.pipeline.stages import generate
 
 
 ALL_TARGETS = "outputs=[rgb,semantic,instances,anatomy,depth,normals,uv,face_id]"

@@ -26,7 +26,7 @@ from glsynth.config import load_config
 from glsynth.io.images import read_rgb
 from glsynth.pipeline import photo
 from glsynth.pipeline.seeding import rng_for
-from glsynth.pipeline.stages import generate
+from glsynth.pipeline import generate
 
 # effect -> (config key, sampled params key) for the "one effect at strength t" rows
 KEYS = {"defocus": "aperture", "motion_blur": "motion_blur", "chromatic_aberration": "chromatic_aberration",

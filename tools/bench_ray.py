@@ -8,7 +8,7 @@
    ``ray.init`` is not counted; starting the actors is, as the process pool's start is
    for the local executor). Median of ``--repeats``.
 2. Ray's per-task overhead: the round trip of a no-op actor call, and the wall time of
-   one render chunk of ``--chunk`` views called directly on a ``_Worker`` in this
+   one render chunk of ``--chunk`` views called directly on a ``Worker`` in this
    process against the same chunk on a Ray actor (body already loaded in both).
 
 Prints Markdown tables.
@@ -25,7 +25,8 @@ import tempfile
 import time
 
 from glsynth.config import load_config
-from glsynth.pipeline.stages import _Worker, generate
+from glsynth.pipeline import generate
+from glsynth.pipeline.worker import Worker
 
 
 def _views_rate(overrides, prepared, workers, executor, repeats):
@@ -111,7 +112,7 @@ def main(argv=None):
         t_ray = _chunk_times(lambda: ray.get(actor.render.remote(chunk)), out, args.chunk_repeats)
         ray.kill(actor)
         _clear_samples(out)
-        worker = _Worker(cfg, out)
+        worker = Worker(cfg, out)
         t_local = _chunk_times(lambda: worker.render(chunk), out, args.chunk_repeats)
         # Ray runs a 1-CPU actor with OMP_NUM_THREADS=1: the same chunk with torch on one thread
         import torch
@@ -128,7 +129,7 @@ def main(argv=None):
         print(f"| no-op actor call round trip, 90th percentile | "
               f"{statistics.quantiles(trips, n=10)[-1] * 1e3:.2f} ms |")
         print(f"| start one actor (process, imports, GL context) until ready | {t_actor:.2f} s |")
-        print(f"| chunk of {args.chunk} views, local `_Worker.render` | {t_local * 1e3:.0f} ms |")
+        print(f"| chunk of {args.chunk} views, local `Worker.render` | {t_local * 1e3:.0f} ms |")
         print(f"| same, torch on 1 thread (as in a 1-CPU Ray actor) | {t_local1 * 1e3:.0f} ms |")
         print(f"| same chunk on a Ray actor | {t_ray * 1e3:.0f} ms |")
         print(f"| Ray actor vs local (torch 1 thread) per chunk | {(t_ray - t_local1) * 1e3:+.0f} ms "

@@ -42,8 +42,9 @@ import os
 import numpy as np
 
 from ..dataformat import N_PARTS
+from ..errors import MeshError
 from ..io.images import ImageError, read_mask, read_rgb
-from ..mesh import Mesh, MeshError
+from ..mesh import Mesh
 from .bodies import Body
 from .colour import fitzpatrick_from_ita, ita_degrees
 from .uv import ensure_uvs

@@ -14,7 +14,8 @@ import time
 import numpy as np
 from scipy import ndimage
 
-from ..mesh import Mesh, MeshError
+from ..errors import MeshError
+from ..mesh import Mesh
 from .skin import uv_raster
 
 log = logging.getLogger(__name__)

@@ -2,6 +2,11 @@
 
 The backend is chosen by argument, else by the ``GLSYNTH_GL_BACKEND`` environment
 variable, else EGL. Every context is OpenGL 3.3 core or newer.
+
+EGL and OSMesa contexts are made by a loader object (glcontext's EGL backend, or
+``_OSMesaLoader`` here: glcontext has no OSMesa backend) handed to moderngl's public
+``moderngl.create_context(context=loader)``; the loader is kept in ``ctx.extra`` under
+``LOADER_KEY``, which is how ``UnlockedGL`` finds GL functions to call itself.
 """
 from __future__ import annotations
 
@@ -9,8 +14,8 @@ import ctypes
 import ctypes.util
 import logging
 import os
-from collections import deque
 
+import glcontext
 import moderngl
 
 from ..errors import UnavailableError
@@ -19,6 +24,7 @@ log = logging.getLogger(__name__)
 
 BACKENDS = ("egl", "osmesa", "window")
 REQUIRED_GL = 330
+LOADER_KEY = "glsynth_gl_loader"  # ctx.extra[LOADER_KEY]: the loader of a context made here
 
 # What to install when a backend's library is missing (Debian/Ubuntu package names).
 _DEBIAN_HINT = {
@@ -68,8 +74,9 @@ class UnlockedGL:
     in which llvmpipe shades the vertices on the calling thread (~20 and ~7 ms per
     generated view). Other Python threads (a pipeline's writer threads) could not run
     meanwhile. ``finish`` waits for the queued work, so that the moderngl call after
-    it finds it done. ``available`` is False (``finish`` is then ``ctx.finish``) when
-    the context's loader cannot give the functions."""
+    it finds it done. ``available`` is False (``finish`` is then ``ctx.finish``) for a
+    context not made by ``create_context`` ('window' and contexts passed in: their
+    loader is moderngl's own) or whose loader cannot give the functions."""
 
     _SIGNATURES = {"glFinish": (), "glUseProgram": ("u",), "glBindVertexArray": ("u",),
                    "glDrawArrays": ("u", "i", "i"), "glBindFramebuffer": ("u", "u"),
@@ -78,10 +85,10 @@ class UnlockedGL:
     GL_COLOR_BUFFER_BIT, GL_NEAREST = 0x4000, 0x2600
 
     def __init__(self, ctx: moderngl.Context):
+        loader = ctx.extra.get(LOADER_KEY) if isinstance(ctx.extra, dict) else None
         try:
-            load = ctx.mglo._context.load_opengl_function
-            address = {name: load(name) for name in self._SIGNATURES}
-        except Exception:  # a loader without glcontext's interface
+            address = {name: loader.load_opengl_function(name) for name in self._SIGNATURES}
+        except Exception:  # no loader of ours, or one without glcontext's interface
             address = {}
         self.available = bool(address) and all(address.values())
         self.finish = ctx.finish
@@ -115,9 +122,14 @@ def _create_egl() -> moderngl.Context:
             "GL backend 'egl': libEGL.so.1 not found; install the Debian packages "
             f"'{_DEBIAN_HINT['egl']}' (or your GPU driver's EGL), or set "
             "GLSYNTH_GL_BACKEND=osmesa")
+    loader = None
     try:
-        return moderngl.create_context(standalone=True, backend="egl", require=REQUIRED_GL)
+        # glcontext's documented backend (it reads GLCONTEXT_DEVICE_INDEX: the GPU to use)
+        loader = glcontext.get_backend_by_name("egl")(mode="standalone", glversion=REQUIRED_GL)
+        return _with_loader(loader)
     except Exception as exc:  # glcontext raises bare Exceptions
+        if loader is not None:
+            loader.release()
         raise GLBackendError(
             f"GL backend 'egl': could not create an OpenGL {REQUIRED_GL // 100}."
             f"{REQUIRED_GL // 10 % 10} context ({exc}); install '{_DEBIAN_HINT['egl']}' "
@@ -199,18 +211,17 @@ class _OSMesaLoader:
 
 def _create_osmesa() -> moderngl.Context:
     loader = _OSMesaLoader()
-    # Same steps as moderngl.init_context, without making it the process-wide default.
-    ctx = moderngl.Context.__new__(moderngl.Context)
-    ctx.mglo, ctx.version_code = moderngl.mgl.create_context(context=loader)
-    ctx._info = None
-    ctx._extensions = None
-    ctx.extra = {"osmesa_loader": loader}
-    ctx._gc_mode = None
-    ctx._objects = deque()
-    ctx._screen = ctx.detect_framebuffer(0)
-    ctx.fbo = ctx.detect_framebuffer()
-    ctx.mglo.fbo = ctx.fbo.mglo
-    if ctx.version_code < REQUIRED_GL:
-        raise GLBackendError(
-            f"GL backend 'osmesa': got OpenGL {ctx.version_code}, need {REQUIRED_GL}")
+    try:
+        return _with_loader(loader)
+    except Exception as exc:  # moderngl's ValueError for an old GL, or a loader failure
+        loader.release()
+        raise GLBackendError(f"GL backend 'osmesa': {exc}") from exc
+
+
+def _with_loader(loader) -> moderngl.Context:
+    """The moderngl context of ``loader`` (moderngl calls its ``load_opengl_function``,
+    and its ``__enter__``/``__exit__``/``release`` where it has them), at least
+    REQUIRED_GL, with the loader in ``ctx.extra``."""
+    ctx = moderngl.create_context(require=REQUIRED_GL, context=loader)
+    ctx.extra = {LOADER_KEY: loader}
     return ctx

@@ -7,8 +7,10 @@ reads each requested buffer back once. Returned arrays have row 0 at the top.
 """
 from __future__ import annotations
 
+import enum
 import logging
 import weakref
+from dataclasses import dataclass
 
 import cv2
 import moderngl
@@ -33,6 +35,48 @@ SKIN_UNITS = (6, 7, 8)
 DECAL_UNITS = {"u_decal_region": 9, "u_decal_info": 10, "u_decal_colour": 11, "u_decal_aux": 12,
                "u_decal_ids": 13}
 MAX_SUPERSAMPLE = 8
+
+
+# ---- what the framebuffer and program caches are keyed by ----------------------------
+class Target(enum.Enum):
+    """A framebuffer layout (besides ``GBuffer`` and ``Msaa``), cached per size."""
+    LABELS = "labels"      # four uint16 label channels + depth
+    RGB = "rgb"            # float32 RGBA texture + depth: the shading pass
+    RGB8 = "rgb8"          # unorm8 RGBA + depth: shading read back as rgba8
+    RESOLVE = "resolve"    # float32 RGBA: the k x k supersampling downsample
+    RESOLVE8 = "resolve8"  # unorm8 RGBA: the same, read back as rgba8
+    DEPTH = "depth"        # depth only, read back (``Renderer.depth``)
+    SHADOW = "shadow"      # depth texture sampled with comparison (shadow maps)
+
+
+@dataclass(frozen=True)
+class GBuffer:
+    """The G-buffer framebuffer: face id and depth, the barycentric and UV targets
+    unless ``bary_uv`` is False, then the label maps when ``labels``."""
+    labels: bool = False
+    bary_uv: bool = True
+
+
+@dataclass(frozen=True)
+class Msaa:
+    """A multisampled unorm8 RGBA framebuffer (+ depth) that the shading draws into."""
+    samples: int
+
+
+@dataclass(frozen=True)
+class GBufferProgram:
+    """The program drawing into ``target`` (None: the labels pass alone, labels.frag)
+    for a label layout from ``Renderer._bind_labels`` (None: without labels)."""
+    target: GBuffer | None
+    label_layout: tuple | None = None
+
+
+@dataclass(frozen=True)
+class PhongProgram:
+    """The Phong shading program for a light count, with or without shadows and decals."""
+    n_lights: int
+    shadows: bool
+    decals: bool = False
 
 
 _U8_TO_HALF = (np.arange(256, dtype=np.float32) / 255).astype(np.float16)
@@ -309,37 +353,31 @@ class Renderer:
         self._fbos = {}
         self._tiles = None     # skin detail tiles (_detail_tiles)
 
-    @staticmethod
-    def _gbuffer_kind(labels: bool, bary_uv: bool) -> str:
-        """Program and framebuffer name of a G-buffer draw: with the label maps or not,
-        with the barycentric and UV targets or without (``-lean``)."""
-        return f"gbuffer{'+labels' if labels else ''}{'' if bary_uv else '-lean'}"
-
-    def _gbuffer_program(self, kind: str, label_layout=None) -> str:
-        """Name of the program for a draw of ``kind`` (a G-buffer kind, or 'labels' for
-        the labels alone) with ``label_layout`` = (maps, first per-corner slot) from
+    def _gbuffer_program(self, target: GBuffer | None, label_layout=None) -> GBufferProgram:
+        """Key of the program for a draw into ``target`` (None: the labels alone) with
+        ``label_layout`` = (maps, first per-corner slot, decal slot) from
         ``_bind_labels`` (see labels.glsl), compiled on first use."""
-        name = kind if label_layout is None else f"{kind}:" + "/".join(map(str, label_layout))
+        name = GBufferProgram(target, label_layout)
         if name not in self.programs:
             layout = {} if label_layout is None else dict(zip(("LABEL_MAPS", "LABEL_CORNERS_FROM"),
                                                               label_layout[:2]))
             if label_layout is not None and label_layout[2] >= 0:
                 layout["DECAL_SLOT"] = label_layout[2]
-            if kind == "labels":
+            if target is None:
                 frag = with_defines(shader_source("labels.frag"), **layout)
             else:
-                frag = with_defines(shader_source("gbuffer.frag"), LABELS=int("+labels" in kind),
-                                    BARY_UV=int(not kind.endswith("-lean")), **layout)
+                frag = with_defines(shader_source("gbuffer.frag"), LABELS=int(target.labels),
+                                    BARY_UV=int(target.bary_uv), **layout)
             prog = self.ctx.program(vertex_shader=shader_source("mesh.vert"), fragment_shader=frag)
             _set_units(prog, {**{f"u_labels{i}": i + 2 for i in range(MAX_LABEL_MAPS)}, **DECAL_UNITS})
             self.programs[name] = prog
         return name
 
-    def _phong(self, n_lights: int, shadows: bool, decals=False) -> str:
-        """Name of the shading program for this light count, shadow and decal setting,
+    def _phong(self, n_lights: int, shadows: bool, decals=False) -> PhongProgram:
+        """Key of the shading program for this light count, shadow and decal setting,
         compiled on first use (see phong.frag for why the count is a compile-time
         constant)."""
-        name = f"rgb{n_lights}{'s' if shadows else ''}{'d' if decals else ''}"
+        name = PhongProgram(n_lights, shadows, decals)
         if name not in self.programs:
             frag = with_defines(shader_source("phong.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows,
                                 DECALS=decals)
@@ -464,36 +502,36 @@ class Renderer:
             self._release_fbo(self._fbos.pop(next(iter(self._fbos))))
         ctx = self.ctx
         depth = ctx.depth_renderbuffer((w, h))
-        if kind.startswith("gbuffer"):  # face id, depth, [barycentrics, UV], [labels]
+        if isinstance(kind, GBuffer):  # face id, depth, [barycentrics, UV], [labels]
             colors = [ctx.renderbuffer((w, h), 1, dtype="i4"), ctx.renderbuffer((w, h), 1, dtype="f4")]
-            if not kind.endswith("-lean"):
+            if kind.bary_uv:
                 colors += [ctx.renderbuffer((w, h), 4, dtype="f4"), ctx.renderbuffer((w, h), 2, dtype="f4")]
-            if "+labels" in kind:
+            if kind.labels:
                 colors.append(ctx.renderbuffer((w, h), 4, dtype="u2"))
-        elif kind == "labels":
+        elif kind is Target.LABELS:
             colors = [ctx.renderbuffer((w, h), 4, dtype="u2")]
-        elif kind == "rgb":
+        elif kind is Target.RGB:
             colors = [ctx.texture((w, h), 4, dtype="f4")]
-        elif kind == "depth":  # depth only, read back (see ``depth``)
+        elif kind is Target.DEPTH:  # depth only, read back (see ``depth``)
             colors = []
-        elif kind == "shadow":  # depth only, sampled with comparison + bilinear filtering
+        elif kind is Target.SHADOW:  # depth only, sampled with comparison + bilinear filtering
             colors, depth = [], ctx.depth_texture((w, h))
             depth.compare_func = "<="
             depth.filter = (moderngl.LINEAR, moderngl.LINEAR)
             depth.repeat_x = depth.repeat_y = False
-        elif kind.startswith("rgb-msaa"):
-            samples = int(kind[len("rgb-msaa"):])
+        elif isinstance(kind, Msaa):
+            samples = kind.samples
             # 8-bit samples: 0.5/255 at most off float32 before the resolve averages them
             # (into float32), below the 8-bit image's own rounding; llvmpipe shades into
             # unorm8 on its fast path (512^2 body view with shadows: ~4 core-ms less
             # than half floats)
             colors = [ctx.renderbuffer((w, h), 4, dtype="f1", samples=samples)]
             depth = ctx.depth_renderbuffer((w, h), samples=samples)
-        elif kind == "resolve":
+        elif kind is Target.RESOLVE:
             colors, depth = [ctx.renderbuffer((w, h), 4, dtype="f4")], None
-        elif kind in ("rgb8", "resolve8"):  # 8-bit shading targets read back as rgba8
+        elif kind in (Target.RGB8, Target.RESOLVE8):  # 8-bit shading targets read back as rgba8
             colors = [ctx.renderbuffer((w, h), 4, dtype="f1")]
-            depth = depth if kind == "rgb8" else None
+            depth = depth if kind is Target.RGB8 else None
         else:
             raise KeyError(kind)
         fbo = ctx.framebuffer(color_attachments=colors, depth_attachment=depth)
@@ -660,7 +698,7 @@ class Renderer:
         n = self.SHADOW_SIZE
         light_cam = Camera.look_at(light.position, target, fov_deg=100.0, width=n, height=n)
         mats = self._matrices(gpu, mesh, light_cam)
-        fbo = self._fbo("shadow", n, n)
+        fbo = self._fbo(Target.SHADOW, n, n)
         self._draw(gpu, "shadow", fbo, mats)
         fbo.depth_attachment.use(1)
         prog["u_light_viewproj"].write(mats["viewproj"].T.astype("f4").tobytes())
@@ -703,11 +741,11 @@ class Renderer:
     def _draw_gbuffer(self, gpu, mats, size, labels=None, label_layout=None, want=None):
         """Draw the G-buffer (and labels); returns the function that reads it back."""
         bary_uv = want is None or bool({"bary", "uv"} & want)
-        kind = self._gbuffer_kind(labels is not None, bary_uv)
-        fbo = self._fbo(kind, *size)
+        target = GBuffer(labels=labels is not None, bary_uv=bary_uv)
+        fbo = self._fbo(target, *size)
         # moderngl clears every attachment with the same value, so the shader writes
         # face id + 1 over a cleared 0; background depth is set to -1 from the face ids.
-        name = self._gbuffer_program(kind, label_layout)
+        name = self._gbuffer_program(target, label_layout)
         _set_uniforms(self.programs[name], {"u_decal_size": gpu.decal_size})
         self._draw(gpu, name, fbo, mats)
         return lambda: self._read_gbuffer(fbo, bary_uv, labels, want)
@@ -742,9 +780,9 @@ class Renderer:
         k, n = self._check_sampling(supersample, multisample)
         # 8-bit: resolve (average the samples) straight into unorm8, a quarter of the
         # read-back; the k x k downsample still reads float samples
-        fbo = self._fbo("rgb8" if eight_bit and k == 1 else "rgb", size[0] * k, size[1] * k)
+        fbo = self._fbo(Target.RGB8 if eight_bit and k == 1 else Target.RGB, size[0] * k, size[1] * k)
         if n > 1:  # draw with MSAA, then resolve (average the samples) into the plain target
-            msaa = self._fbo(f"rgb-msaa{n}", *fbo.size)
+            msaa = self._fbo(Msaa(n), *fbo.size)
             self._draw(gpu, prog, msaa, mats)
             if self._unlocked.available:  # the GIL released while it waits and copies
                 self._unlocked.resolve(fbo, msaa)
@@ -754,7 +792,7 @@ class Renderer:
             self._draw(gpu, prog, fbo, mats)
         if k > 1:
             src = fbo.color_attachments[0]
-            fbo = self._fbo("resolve8" if eight_bit else "resolve", *size)
+            fbo = self._fbo(Target.RESOLVE8 if eight_bit else Target.RESOLVE, *size)
             fbo.use()
             fbo.viewport = (0, 0, *size)
             self.ctx.disable(moderngl.DEPTH_TEST)
@@ -801,8 +839,8 @@ class Renderer:
         return names, (len(textures), len(items), slot)
 
     def _draw_labels(self, gpu, mats, names, label_layout, size):
-        fbo = self._fbo("labels", *size)
-        name = self._gbuffer_program("labels", label_layout)
+        fbo = self._fbo(Target.LABELS, *size)
+        name = self._gbuffer_program(None, label_layout)
         _set_uniforms(self.programs[name], {"u_decal_size": gpu.decal_size})
         self._draw(gpu, name, fbo, mats)
         return lambda: self._read_labels(fbo, 0, names)
@@ -847,7 +885,7 @@ class Renderer:
         with self.ctx:
             gpu = self._gpu_mesh(mesh)
             near, far = gpu.clip_planes(mesh, camera)
-            fbo = self._fbo("depth", camera.width, camera.height)
+            fbo = self._fbo(Target.DEPTH, camera.width, camera.height)
             self.ctx.enable(moderngl.DEPTH_TEST)
             self._draw(gpu, "shadow", fbo, self._matrices(gpu, mesh, camera))
             z = self._read(fbo, -1, 1, "f4", np.float32)  # the depth attachment
@@ -875,7 +913,7 @@ class Renderer:
         window = (x0, height - y1, x1 - x0, y1 - y0)  # GL rows count from the bottom
         with self.ctx:
             gpu = self._gpu_mesh(mesh)
-            fbo = self._fbo("gbuffer", width, height)
+            fbo = self._fbo(GBuffer(), width, height)
             self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
             fbo.scissor = window
             try:

@@ -96,11 +96,23 @@ def write_bytes(path, data, durable=False):
         _fsync_folder(folder)
 
 
+TEMPORARY_PREFIX = ".tmp-"  # names of files being written, renamed into place when complete
+
+
+def remove_temporaries(root):
+    """Delete, under ``root``, the temporary files of writes that a killed process never
+    renamed into place."""
+    for folder, _, names in os.walk(root):
+        for name in names:
+            if name.startswith(TEMPORARY_PREFIX):
+                os.unlink(os.path.join(folder, name))
+
+
 def _create_temporary(folder, suffix):
     """(fd, path) of a new file in ``folder``; mode 0666 less the umask (mkstemp's 0600
     would make every output unreadable to the rest of a group on shared storage)."""
     for _ in range(100):
-        tmp = os.path.join(folder, f".tmp-{secrets.token_hex(6)}{suffix}")
+        tmp = os.path.join(folder, f"{TEMPORARY_PREFIX}{secrets.token_hex(6)}{suffix}")
         try:
             return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666), tmp
         except FileExistsError:

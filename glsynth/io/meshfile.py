@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from ..mesh import MeshError
+from ..errors import MeshError
 
 
 def load_mesh_arrays(path) -> dict:

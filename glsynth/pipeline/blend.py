@@ -21,6 +21,7 @@ import torch.nn.functional as F
 
 from .. import diff
 from ..camera import Camera
+from ..config import BlendConfig
 from ..errors import GlsynthError
 from .paste import PastedTextures, Placement
 from .poisson import crop_box
@@ -32,25 +33,34 @@ class BlendError(GlsynthError, RuntimeError):
     """The blend produced a non-finite value or cannot run with these settings."""
 
 
+_BLEND = BlendConfig()  # the keys' defaults (glsynth/config.py)
+
+
 @dataclass
 class BlendSettings:
-    method: str = "deep"
-    steps: int = 400
-    lr: float = 0.005
-    optimizer: str = "adam"
-    content: float = 2.0
-    style: float = 1e6
-    gradient: float = 1e5
-    tv: float = 1e-4
-    pad: int = 16
-    perturb_deg: float = 4.0
-    perturb_w: float = 0.1
+    """What the deep blend reads: the ``blend`` keys (documented in glsynth/config.py;
+    the defaults are the config's) and the float type it optimises in."""
+    steps: int = _BLEND.steps
+    lr: float = _BLEND.lr
+    optimizer: str = _BLEND.optimizer
+    content: float = _BLEND.content
+    style: float = _BLEND.style
+    gradient: float = _BLEND.gradient
+    tv: float = _BLEND.tv
+    pad: int = _BLEND.pad
+    perturb_deg: float = _BLEND.perturb_deg
+    perturb_w: float = _BLEND.perturb_w
     dtype: str = "float32"
-    threads: int = 1   # torch threads while blending (see ``DeepBlender.blend``)
+    threads: int = _BLEND.threads   # torch threads while blending (see ``DeepBlender.blend``)
+
+    @classmethod
+    def from_config(cls, b: BlendConfig) -> BlendSettings:
+        return cls(b.steps, b.lr, b.optimizer, b.content, b.style, b.gradient, b.tv, b.pad,
+                   b.perturb_deg, b.perturb_w, threads=b.threads)
 
     @property
     def needs_features(self):
-        return self.method == "deep" and (self.content > 0 or self.style > 0)
+        return self.content > 0 or self.style > 0
 
 
 _LAPLACE = torch.tensor([[0.0, 1.0, 0.0], [1.0, -4.0, 1.0], [0.0, 1.0, 0.0]])

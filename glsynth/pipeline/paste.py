@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from ..camera import Camera
+from ..config import Config, LesionsConfig, PasteConfig
 from ..dataformat import BODY_INSTANCES, PASTED, PLACEMENTS
 from ..errors import GlsynthError
 from ..sampling import sample_bilinear
@@ -100,17 +101,28 @@ class PastedTextures:
         return os.path.isfile(os.path.join(folder, PLACEMENTS))
 
 
+_PASTE, _LESIONS = PasteConfig(), LesionsConfig()  # the keys' defaults (glsynth/config.py)
+
+
 @dataclass
 class PasteSettings:
-    view_size: int = 512
-    fov_deg: float = 30.0
-    w: tuple = (0.4, 0.6)
-    max_depth_change: float = 0.02
-    dilation: int = 9
-    attempts: int = 60
-    size: tuple = (0.15, 0.4)      # lesion mask extent / view width
-    enlarge: bool = True           # False: never more view pixels than source pixels
-    overlap: str = "lesion"        # what a new dilated lesion must avoid: "lesion" | "dilated"
+    """What placing lesions reads: the ``paste`` keys and ``lesions.size`` (documented
+    in glsynth/config.py), ranges as tuples; the defaults are the config's."""
+    view_size: int = _PASTE.view_size
+    fov_deg: float = _PASTE.fov_deg
+    w: tuple = tuple(_PASTE.w)
+    max_depth_change: float = _PASTE.max_depth_change
+    dilation: int = _PASTE.dilation
+    attempts: int = _PASTE.attempts
+    size: tuple = tuple(_LESIONS.size)
+    enlarge: bool = _PASTE.enlarge
+    overlap: str = _PASTE.overlap
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> PasteSettings:
+        p = cfg.paste
+        return cls(p.view_size, p.fov_deg, tuple(p.w), p.max_depth_change, p.dilation, p.attempts,
+                   tuple(cfg.lesions.size), p.enlarge, p.overlap)
 
 
 def compose_lesion(lesion, view_size, extent_px, flip_h, flip_v, angle_deg, max_scale=None):

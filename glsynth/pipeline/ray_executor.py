@@ -1,6 +1,6 @@
 """``glsynth generate --executor ray``: the run's tasks on long-lived Ray actors.
 
-Each actor holds one :class:`glsynth.pipeline.stages._Worker` (its own headless GL
+Each actor holds one :class:`glsynth.pipeline.worker.Worker` (its own headless GL
 context and loaded assets), created once per run. The driver first hands out the
 per-body prepare tasks (paste + blend), then the view chunks, preferring the actor
 that already holds a chunk's body (the views stage keeps the last body loaded).
@@ -26,6 +26,7 @@ from collections import OrderedDict, deque
 from tqdm import tqdm
 
 from ..errors import GlsynthError, MissingDependencyError
+from ..io.images import remove_temporaries
 from .ray_reaper import Reaper
 
 try:
@@ -59,7 +60,7 @@ def _require_ray():
 if has_ray:
     @ray.remote
     class GlsynthWorker:
-        """A Ray actor around one ``_Worker``; every method returns the worker's report."""
+        """A Ray actor around one ``Worker``; every method returns the worker's report."""
 
         def __init__(self, cfg_dict, out):
             gpu_ids = ray.get_gpu_ids()
@@ -69,10 +70,10 @@ if has_ray:
                 os.environ.setdefault("GLCONTEXT_DEVICE_INDEX", str(gpu_ids[0]))
             logging.basicConfig(level=logging.WARNING)
             from glsynth.config import from_dict
-            from glsynth.pipeline.stages import _Worker, share_cores
+            from glsynth.pipeline.worker import Worker, share_cores
             cpus = int(ray.get_runtime_context().get_assigned_resources().get("CPU", 1) or 1)
             share_cores(cpus)  # before the GL context: llvmpipe reads LP_NUM_THREADS then
-            self.worker = _Worker(from_dict(cfg_dict), out, writer_threads=cpus)
+            self.worker = Worker(from_dict(cfg_dict), out, writer_threads=cpus)
 
         def ready(self):
             return {"pid": os.getpid(), "node": ray.get_runtime_context().get_node_id(),
@@ -185,8 +186,7 @@ def run_ray(cfg, out, ids, chunks, workers, address=None):
         reports += _schedule(pool, chunks, "render", "views", "img", affinity=True)
         if pool.deaths:
             # writes a killed actor never renamed into place; every task is finished now
-            from .stages import _remove_partial_writes
-            _remove_partial_writes(out)
+            remove_temporaries(out)
             log.warning("ray: %d actor(s) died and were replaced; their tasks were re-run",
                         pool.deaths)
         return reports

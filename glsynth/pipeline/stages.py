@@ -15,25 +15,22 @@ import gc
 import json
 import logging
 import os
-import sys
 import threading
 import time
 
 import numpy as np
 from tqdm import tqdm
 
-from .. import __version__
 from ..config import Config
-from ..dataformat import BLENDED, BOX_CONVENTION, PASTED, camera_record, lights_record
-from ..errors import InputError
+from ..dataformat import BLENDED, PASTED, view_record
 from ..io.images import read_rgb, write_png, write_text
 from . import views as V
 from .bodies import TexelGeometry, body_ids, load_body
-from .inputs import Inputs, background_source, lesion_source, open_inputs
+from .inputs import Inputs, background_source, lesion_source
 from .paste import PasteError, PasteSettings, PastedTextures, paste_lesions
-from .runlock import open_run
+from .prefetch import Prefetcher
 from .seeding import rng_for, torch_seed
-from .writer import finalize, sample_done, write_sample
+from .writer import SampleWriter, sample_done, write_sample
 
 log = logging.getLogger(__name__)
 
@@ -96,9 +93,7 @@ class SelectAndPaste(_Stage):
             log.info("lesions.per_body is 0: nothing to paste")
             return
         lesions = self._lesions  # a worker keeps it across bodies
-        p = cfg.paste
-        settings = PasteSettings(p.view_size, p.fov_deg, tuple(p.w), p.max_depth_change,
-                                 p.dilation, p.attempts, tuple(cfg.lesions.size), p.enlarge, p.overlap)
+        settings = PasteSettings.from_config(cfg)
         for body_id in tqdm(self.body_ids, desc="paste", unit="body"):
             folder = self.body_dir(body_id)
             if PastedTextures.exists(folder):
@@ -150,9 +145,7 @@ class BlendLesions(_Stage):
                                         b.pad)
             else:
                 from .blend import BlendSettings, DeepBlender  # torch: imported only to blend deep
-                settings = BlendSettings(b.method, b.steps, b.lr, b.optimizer, b.content, b.style,
-                                         b.gradient, b.tv, b.pad, b.perturb_deg, b.perturb_w,
-                                         threads=b.threads)
+                settings = BlendSettings.from_config(b)
                 if settings.needs_features and extractor is None:
                     from .features import make_extractor
                     extractor, self.feature_description = make_extractor(b.features, b.vgg_weights)
@@ -206,8 +199,9 @@ class Generate2DViews(_Stage):
                    disable=not progress)
         rejected = {}
         self.renderer  # made here, on the thread that renders (the helper thread stages)
+        self._ahead = Prefetcher()
         if todo:  # the first body loads in the helper thread while the backgrounds are made
-            self._load_body_ahead(todo[0][0])
+            self._ahead.start(("body", todo[0][0]), self._body_from_disk, todo[0][0])
         if self._backgrounds is None:
             self._backgrounds = background_source(self.cfg)
         # Python's cyclic collector kept walking every object torch, the modules and the
@@ -229,7 +223,7 @@ class Generate2DViews(_Stage):
                     self._time("views", time.perf_counter() - t0)
                     bar.update(1)
         finally:
-            self._stop_prefetch()
+            self._ahead.close()
             gc.unfreeze()
         bar.close()
         if rejected:
@@ -245,49 +239,19 @@ class Generate2DViews(_Stage):
         return int(rng.integers(n_backgrounds)), float(rng.uniform(*self.cfg.backgrounds.blur))
 
     def _prefetch(self, upcoming):
-        """In a helper thread, ahead of the coming views: load the next body from disk
-        (~0.2 s each, which the render thread used to wait for at every body change)
-        and make (or decode and resize) their backgrounds (a procedural room is ~50 ms
-        of numpy and OpenCV)."""
+        """Start the helper thread (prefetch.py) on what the coming views need: the
+        next body, and (when the room tints the light, which needs the background
+        before the scene) their backgrounds."""
         current = getattr(self, "_state", (None,))[0]
         following = next((b for b, _ in upcoming if b != (current or upcoming[0][0])), None)
         if following is not None:
-            self._load_body_ahead(following)
+            self._ahead.start(("body", following), self._body_from_disk, following)
         if self.cfg.views.ambient_tint <= 0:
             return  # without tint the background index is drawn after the scene
         size = self.cfg.views.size
         for body_id, j in upcoming:
             i, _ = self._tint_background_choice(body_id, j, len(self._backgrounds))
-            if i not in self._bg_futures:
-                self._bg_futures[i] = self._submit(self._backgrounds.get, i, size, size)
-
-    def _submit(self, fn, *args):
-        """Run ``fn(*args)`` in the helper thread (made on first use)."""
-        from concurrent.futures import ThreadPoolExecutor
-        if getattr(self, "_helper", None) is None:
-            self._helper = ThreadPoolExecutor(1, thread_name_prefix="glsynth-prefetch")
-            self._bg_futures, self._body_futures = {}, {}
-        return self._helper.submit(fn, *args)
-
-    def _load_body_ahead(self, body_id):
-        """Start loading ``body_id`` in the helper thread; ``_body_state`` collects it."""
-        if body_id not in getattr(self, "_body_futures", {}):
-            future = self._submit(self._body_from_disk, body_id)
-            self._body_futures[body_id] = future
-
-    def _stop_prefetch(self):
-        if getattr(self, "_helper", None) is not None:
-            self._helper.shutdown(wait=True, cancel_futures=True)
-            self._helper = None
-            self._bg_futures, self._body_futures = {}, {}
-
-    def _background(self, i):
-        """Background ``i`` at the view size (waiting for its prefetch if one runs)."""
-        future = getattr(self, "_bg_futures", {}).pop(i, None)
-        if future is not None:
-            return future.result()
-        size = self.cfg.views.size
-        return self._backgrounds.get(i, size, size)
+            self._ahead.start(("background", i), self._backgrounds.get, i, size, size)
 
     def _body_from_disk(self, body_id):
         """The part of a body's view state that needs no GL: the body, its textured mesh
@@ -306,9 +270,8 @@ class Generate2DViews(_Stage):
         if cached is not None and cached[0] == body_id:
             return cached[1]
         t0 = time.perf_counter()
-        future = getattr(self, "_body_futures", {}).pop(body_id, None)
-        body, mesh_b, instances, placements = (future.result() if future is not None
-                                               else self._body_from_disk(body_id))
+        body, mesh_b, instances, placements = self._ahead.get(("body", body_id), self._body_from_disk,
+                                                              body_id)
         # the textured mesh: it goes to the GPU for the views anyway (one upload)
         lesion_points = self._lesion_points(self.renderer, mesh_b, instances, placements)
         state = (body, mesh_b, instances, V.nevi_label_map(body), placements, lesion_points,
@@ -356,7 +319,7 @@ class Generate2DViews(_Stage):
             # the room's colour must be known before shading: the background is drawn
             # first, from its own generator (the view's stream stays as it was)
             bg_index, blur = self._tint_background_choice(body_id, j, len(backgrounds))
-            background = self._background(bg_index)
+            background = self._ahead.get(("background", bg_index), backgrounds.get, bg_index, v.size, v.size)
             tint = V.ambient_tint_from(background, v.ambient_tint)
         for attempt in range(1, v.attempts + 1):
             try:
@@ -366,8 +329,7 @@ class Generate2DViews(_Stage):
                                        cfg.outputs)
                 break
             except V.ViewRejected as exc:
-                reason = str(exc).split(" ")[0] if "<" in str(exc) else str(exc)
-                rejected[reason] = rejected.get(reason, 0) + 1
+                rejected[exc.reason.value] = rejected.get(exc.reason.value, 0) + 1
         else:
             log.warning("%s: no acceptable view in %d attempts; skipped", sid, v.attempts)
             return
@@ -388,18 +350,11 @@ class Generate2DViews(_Stage):
             lesions.append({"instance": k, "box": region["box"], "area": region["area"],
                             "lesion_id": p.lesion_id if p else None,
                             "source": p.lesion_meta if p else None})
-        meta = {"id": sid, "width": v.size, "height": v.size, "attempts": attempt,
-                "camera": camera_record(cam, centre=scene.centre, framing=scene.framing),
-                "light": scene.light.to_dict(), "material": scene.material.to_dict(),
-                "lights": lights_record(scene.lights),
-                "ambient_tint": list(tint) if tint is not None else None,
-                "photo": photo_params,
-                "body": {"id": body_id, **_jsonable(body.meta)},
-                "lesions": lesions,
-                "nevi": [{"id": k, "box": b} for k, b in layers.get("nevi_boxes", {}).items()],
-                "background": {"index": bg_index, "source": cfg.backgrounds.source, "blur": blur},
-                "fractions": layers["fractions"],
-                "box_convention": BOX_CONVENTION}
+        meta = view_record(sid, v.size, scene, attempts=attempt, ambient_tint=tint, photo=photo_params,
+                           body={"id": body_id, **_jsonable(body.meta)}, lesions=lesions,
+                           nevi=[{"id": k, "box": b} for k, b in layers.get("nevi_boxes", {}).items()],
+                           background={"index": bg_index, "source": cfg.backgrounds.source, "blur": blur},
+                           fractions=layers["fractions"])
         out, outputs = self.out, cfg.outputs
 
         def finish():
@@ -413,225 +368,5 @@ class Generate2DViews(_Stage):
         return finish
 
 
-class SampleWriter:
-    """Runs each sample's finishing work (``submit(fn)``) in background threads, at
-    most ``max_pending`` samples behind the renderer; leaving the ``with`` block waits
-    for all of them and re-raises the first error. A sample's JSON is still its last
-    file, so an interrupted run leaves only complete samples or temporaries."""
-
-    def __init__(self, threads=2, max_pending=3):
-        from collections import deque
-        from concurrent.futures import ThreadPoolExecutor
-        self._pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="glsynth-writer")
-        self._pending, self.max_pending = deque(), max_pending
-
-    def submit(self, fn):
-        self._pending.append(self._pool.submit(fn))
-        while len(self._pending) > self.max_pending:
-            self._pending.popleft().result()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        try:
-            while self._pending:
-                future = self._pending.popleft()
-                if exc[0] is None:
-                    future.result()
-                else:
-                    future.cancel()
-        finally:
-            self._pool.shutdown(wait=True)
-        return False
-
-
 def _jsonable(obj):
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
-
-
-class _Worker:
-    """One process's share of a run: its own GL context, stages and loaded body."""
-
-    def __init__(self, cfg: Config, out, writer_threads=None, inputs: Inputs | None = None):
-        from ..gl.renderer import Renderer
-        size = max(cfg.paste.view_size, cfg.views.size)
-        renderer = Renderer(size, size)
-        self.paste = SelectAndPaste(cfg, out, renderer=renderer, body_subset=[], inputs=inputs)
-        self.blend = BlendLesions(cfg, out, renderer=renderer, body_subset=[])
-        self.views = Generate2DViews(cfg, out, renderer=renderer, body_subset=[], inputs=inputs)
-        if writer_threads is not None:  # a process's share of the cores caps the default
-            self.views.writer_threads = min(Generate2DViews.writer_threads, writer_threads)
-        self.cfg = cfg
-
-    def prepare(self, body_id):
-        """Paste and blend one body (skipped when done before)."""
-        if self.cfg.lesions.per_body > 0:
-            for stage, run in ((self.paste, self.paste.paste_on_locations),
-                               (self.blend, self.blend.blend_lesions)):
-                stage.body_ids = [body_id]
-                run()
-        return self._report()
-
-    def close(self):
-        self.views.renderer.close()
-
-    def render(self, tasks, progress=False):
-        rejected = self.views.synthesize_views(tasks, progress=progress)
-        return {**self._report(), "rejected": rejected, "done": len(tasks)}
-
-    def _report(self):
-        timings = {}
-        for stage in (self.paste, self.blend, self.views):
-            for k, t in stage.timings.items():
-                timings[k] = timings.get(k, 0.0) + t
-            stage.timings = {}
-        return {"timings": timings,
-                "gl": self.views.renderer.info}
-
-
-_PROCESS_WORKER = None
-
-
-def share_cores(threads: int):
-    """Limit this process's thread pools to ``threads``: llvmpipe's rasteriser threads
-    (read when the GL context is made, so call this first; a user's LP_NUM_THREADS
-    wins), OpenCV's and torch's. Each pool defaults to every core, so N worker
-    processes oversubscribed the machine N-fold: 2 workers on 2 cores ran at 0.7x
-    the samples/s of one, 8 on 16 cores at 0.75x. Torch is imported only by a deep
-    blend: until then its share is passed on through OMP_NUM_THREADS."""
-    import cv2
-    threads = max(1, int(threads))
-    os.environ.setdefault("LP_NUM_THREADS", str(threads))
-    cv2.setNumThreads(threads)
-    if "torch" in sys.modules:
-        sys.modules["torch"].set_num_threads(threads)
-    else:
-        os.environ["OMP_NUM_THREADS"] = str(threads)
-
-
-def _worker_init(cfg_dict, out, threads):
-    global _PROCESS_WORKER
-    import signal
-    from ..config import from_dict
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle
-    logging.basicConfig(level=logging.WARNING)
-    share_cores(threads)
-    _PROCESS_WORKER = _Worker(from_dict(cfg_dict), out, writer_threads=threads)
-
-
-def _worker_prepare(body_id):
-    return _PROCESS_WORKER.prepare(body_id)
-
-
-def _worker_render(tasks):
-    return _PROCESS_WORKER.render(tasks)
-
-
-EXECUTORS = ("local", "ray")
-
-
-def generate(cfg: Config, out, resume=False, workers=1, executor="local", address=None):
-    """The whole pipeline into ``out``; returns the manifest.
-
-    ``workers`` > 1 runs that many processes, each with its own GL context, started
-    once: bodies are pasted and blended in parallel, then views are rendered in chunks.
-    Every random choice is keyed by the task, so the files are the same for any
-    number of workers. ``executor="ray"`` spreads the same tasks over Ray actors
-    (``address``: an existing cluster; None starts a local one).
-
-    ``out`` holds one run (``runlock``): a folder with a run in it needs ``resume``,
-    which continues it only with the same config, seed and glsynth version, and no
-    other process may write there meanwhile.
-    """
-    out = os.fspath(out)
-    if workers < 1:
-        raise InputError(f"workers must be >= 1, got {workers}")
-    if executor not in EXECUTORS:
-        raise InputError(f"executor must be one of {EXECUTORS}, got {executor!r}")
-    # one run per folder: locked, and its fingerprint written first or checked
-    with open_run(out, cfg, resume):
-        return _generate(cfg, out, resume, workers, executor, address)
-
-
-def _generate(cfg, out, resume, workers, executor, address):
-    if resume:
-        _remove_partial_writes(out)
-    inputs = open_inputs(cfg)  # every input file checked before any stage works
-    t_start = time.perf_counter()
-    ids = body_ids(cfg)
-    tasks = [(b, j) for b in ids for j in range(cfg.views.per_body)]
-    chunk = max(1, min(8, len(tasks) // (4 * workers) or 1))
-    chunks = [tasks[i:i + chunk] for i in range(0, len(tasks), chunk)]
-    reports = []
-    if executor == "ray":
-        from .ray_executor import run_ray
-        reports = run_ray(cfg, out, ids, chunks, workers, address)
-    elif workers == 1:
-        worker = _Worker(cfg, out, inputs=inputs)
-        try:
-            reports += [worker.prepare(b) for b in tqdm(ids, desc="paste + blend", unit="body")]
-            # one call for all views: the stage then loads each next body while rendering
-            reports.append(worker.render(tasks, progress=True))
-        finally:  # a process that calls generate again must not keep this run's GL memory
-            worker.close()
-    else:
-        import multiprocessing as mp
-        ctx = mp.get_context("spawn")  # GL contexts do not survive fork
-        threads = max(1, (os.cpu_count() or 1) // workers)
-        with ctx.Pool(workers, initializer=_worker_init, initargs=(cfg.to_dict(), out, threads)) as pool:
-            reports += list(tqdm(pool.imap_unordered(_worker_prepare, ids), total=len(ids),
-                                 desc="paste + blend", unit="body"))
-            bar = tqdm(total=len(tasks), desc="views", unit="img")
-            for r in pool.imap_unordered(_worker_render, chunks):
-                reports.append(r)
-                bar.update(r["done"])
-            bar.close()
-    timings, rejected = {}, {}
-    for r in reports:
-        for k, t in r["timings"].items():
-            timings[k] = timings.get(k, 0.0) + t
-        for k, n in r.get("rejected", {}).items():
-            rejected[k] = rejected.get(k, 0) + n
-    timings["total"] = time.perf_counter() - t_start
-    features = _blend_features(out, ids)
-    gl = reports[-1]["gl"] if reports else {}
-    manifest = {"glsynth_version": __version__, "seed": cfg.seed, "config": cfg.to_dict(),
-                "workers": workers, "executor": executor, "gl_renderer": gl.get("GL_RENDERER"),
-                "gl_version": gl.get("GL_VERSION"), "versions": _versions(),
-                "blend_features": ", ".join(features),
-                "timings_seconds": {k: round(t, 3) for k, t in timings.items()},
-                "rejected_views": rejected}
-    finalize(out, manifest)
-    return manifest
-
-
-def _blend_features(out, ids) -> list:
-    """The feature extractors the bodies' deep blends used, from their blend.json: the
-    same for a resumed run, which blends nothing itself."""
-    found = set()
-    for body_id in ids:
-        path = os.path.join(out, "bodies", body_id, "blend.json")
-        if os.path.isfile(path):
-            with open(path) as fh:
-                found.add(json.load(fh).get("features", "none"))
-    return sorted(found - {"none"}) or ["none"]
-
-
-def _remove_partial_writes(out):
-    """Temporary files of writes a killed run never renamed into place."""
-    for root, _, names in os.walk(out):
-        for n in names:
-            if n.startswith(".tmp-"):
-                os.unlink(os.path.join(root, n))
-
-
-def _versions():
-    import importlib.metadata as md
-    out = {}
-    for pkg in ("numpy", "torch", "moderngl", "anny", "opencv-contrib-python-headless"):
-        try:
-            out[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            pass
-    return out

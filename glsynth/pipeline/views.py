@@ -8,6 +8,7 @@ layers below; ``render_view`` renders only the passes the requested outputs need
 """
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 
 import cv2
@@ -15,6 +16,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..dataformat import SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN
+from ..errors import GlsynthError
 from ..lighting import Material, PointLight
 
 
@@ -35,8 +37,23 @@ class ViewScene:
         return [self.light] + ([self.flash] if self.flash is not None else [])
 
 
-class ViewRejected(Exception):
-    pass
+class Rejection(enum.Enum):
+    """Why a sampled view is not used; the values name the counts of the run's
+    manifest (``rejected_views``)."""
+    ZERO_NORMAL = "zero normal"
+    LIGHT_BLOCKED = "light blocked by the body"
+    POINT_HIDDEN = "camera inside the mesh or the point is hidden"
+    TOO_LITTLE_SKIN = "skin"        # views.min_skin
+    TOO_LITTLE_LESION = "lesion"    # views.min_lesion
+
+
+class ViewRejected(GlsynthError):
+    """A sampled view is unusable; ``reason`` is a :class:`Rejection`, ``detail`` (in the
+    message) the numbers behind it."""
+
+    def __init__(self, reason: Rejection, detail: str = ""):
+        super().__init__(f"{reason.value}: {detail}" if detail else reason.value)
+        self.reason, self.detail = reason, detail
 
 
 @dataclass
@@ -153,14 +170,14 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
         chosen = _wild_camera(mesh, lesion_sites, rng, v)
     point, normal, direction, w, centre = chosen
     if np.linalg.norm(normal) < 1e-9 or np.linalg.norm(direction) < 1e-9:
-        raise ViewRejected("zero normal")
+        raise ViewRejected(Rejection.ZERO_NORMAL)
     cam = Camera.from_surface(point, direction, w, fov_deg=v.fov_deg, width=v.size, height=v.size)
     if direction is not normal:  # tilted: keep the surface's own normal in the record
         cam = Camera(cam.eye, cam.target, cam.up, cam.fov_deg, cam.width, cam.height, None, None,
                      {**cam.surface, "normal": (np.asarray(normal) / np.linalg.norm(normal)).tolist(),
                       "view_direction": cam.surface["normal"]})
     eye = np.asarray(cam.eye)
-    sees = lambda p: np.linalg.norm(p - point) >= 1e-6 and _sees_point(  # noqa: E731
+    sees = lambda p: np.linalg.norm(p - point) >= 1e-6 and sees_point(  # noqa: E731
         renderer, mesh if drawn is None else drawn,
         Camera.look_at(p, point, fov_deg=5.0, width=16, height=16), point)
     if v.light_position == "paper":
@@ -177,7 +194,7 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
             offset = min(offset, 2 * w)  # a lamp or window beside the photographer, not metres off
         light_pos = eye + direction * offset
         if not sees(light_pos):
-            raise ViewRejected("light blocked by the body")
+            raise ViewRejected(Rejection.LIGHT_BLOCKED)
     # One intensity per term for R, G and B alike: independent channels would tint the
     # skin green or purple, which no clinical photo shows.
     ambient = rng.uniform(*v.ambient)
@@ -212,7 +229,7 @@ def ambient_tint_from(background, strength) -> tuple:
     return tuple((1 + float(strength) * (c - 1)).tolist())
 
 
-def _sees_point(renderer, mesh, cam, point) -> bool:
+def sees_point(renderer, mesh, cam, point) -> bool:
     """True when the first surface along the camera's central ray is ``point``."""
     crop = cam.crop(cam.width // 2 - 1, cam.height // 2 - 1, 2, 2)
     return _centre_is(renderer.depth(mesh, crop), cam, point)
@@ -262,7 +279,7 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
                           lights=scene.lights, material=scene.material, supersample=v.supersample,
                           multisample=v.multisample, shadows=v.shadows)
     if scene.point is not None and not _centre_is(out["depth"], scene.camera, scene.point):
-        raise ViewRejected("camera inside the mesh or the point is hidden")
+        raise ViewRejected(Rejection.POINT_HIDDEN)
     # masks and counts in place on uint8/uint16 (this runs on the render thread)
     body_px = out["face_id"] >= 0
     lesion = body_px & (out["instances"] > 0)
@@ -272,9 +289,11 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     counts["skin"] = np.count_nonzero(body_px) - counts["lesion"] - counts["nonskin"]
     fractions = {name: float(c / n) for name, c in counts.items()}
     if fractions["skin"] < v.min_skin:
-        raise ViewRejected(f"skin {fractions['skin']:.3f} < views.min_skin {v.min_skin}")
+        raise ViewRejected(Rejection.TOO_LITTLE_SKIN,
+                           f"{fractions['skin']:.3f} < views.min_skin {v.min_skin}")
     if fractions["lesion"] < v.min_lesion:
-        raise ViewRejected(f"lesion {fractions['lesion']:.3f} < views.min_lesion {v.min_lesion}")
+        raise ViewRejected(Rejection.TOO_LITTLE_LESION,
+                           f"{fractions['lesion']:.3f} < views.min_lesion {v.min_lesion}")
     semantic = body_px.view(np.uint8) * np.uint8(SEMANTIC_SKIN)
     np.putmask(semantic, nonskin, SEMANTIC_NONSKIN)
     np.putmask(semantic, lesion, SEMANTIC_LESION)

@@ -1,12 +1,15 @@
 """Writing a dataset: one atomic file per layer, the per-image JSON last (a sample is
-complete exactly when its JSON exists, which is what --resume looks for), then COCO,
-params.csv and the manifest gathered from the JSONs."""
+complete exactly when its JSON exists, which is what --resume looks for), in background
+threads (``SampleWriter``); then COCO, params.csv and the manifest gathered from the
+JSONs."""
 from __future__ import annotations
 
 import csv
 import io
 import json
 import os
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -136,3 +139,34 @@ def _param_row(sid, meta) -> dict:
             "background": meta["background"]["index"], "blur": meta["background"]["blur"],
             "skin_fraction": meta["fractions"]["skin"], "lesion_fraction": meta["fractions"]["lesion"],
             "lesions": len(meta["lesions"])}
+
+
+class SampleWriter:
+    """Runs each sample's finishing work (``submit(fn)``) in background threads, at
+    most ``max_pending`` samples behind the renderer; leaving the ``with`` block waits
+    for all of them and re-raises the first error. A sample's JSON is still its last
+    file, so an interrupted run leaves only complete samples or temporaries."""
+
+    def __init__(self, threads=2, max_pending=3):
+        self._pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="glsynth-writer")
+        self._pending, self.max_pending = deque(), max_pending
+
+    def submit(self, fn):
+        self._pending.append(self._pool.submit(fn))
+        while len(self._pending) > self.max_pending:
+            self._pending.popleft().result()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        try:
+            while self._pending:
+                future = self._pending.popleft()
+                if exc[0] is None:
+                    future.result()
+                else:
+                    future.cancel()
+        finally:
+            self._pool.shutdown(wait=True)
+        return False

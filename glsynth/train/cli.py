@@ -1,8 +1,11 @@
 """``glsynth train`` and ``glsynth evaluate`` (registered by glsynth.cli)."""
 from __future__ import annotations
 
+from ..errors import InputError
 
-def _threads(args):
+
+def set_threads(args):
+    """torch's CPU threads from ``--threads`` (the train, evaluate and sim2real commands)."""
     if args.threads:
         import torch
         torch.set_num_threads(args.threads)
@@ -10,9 +13,9 @@ def _threads(args):
 
 def cmd_train(args):
     from .trainer import train
-    _threads(args)
+    set_threads(args)
     if not args.data and not args.real_train:
-        raise ValueError("give --data (synthetic) and/or --real-train (real) folders")
+        raise InputError("give --data (synthetic) and/or --real-train (real) folders")
     ck = train(args.data or [], args.out, size=args.size, epochs=args.epochs,
                batch_size=args.batch_size, lr=args.lr, device=args.device,
                time_limit=args.time_limit, resume=args.resume, seed=args.seed, init=args.init,
@@ -32,7 +35,7 @@ def cmd_train(args):
 
 def cmd_evaluate(args):
     from .evaluate import evaluate
-    _threads(args)
+    set_threads(args)
     s = evaluate(args.model, args.real, args.layout, args.out, device=args.device, size=args.size,
                  grid_n=args.grid, progress=not args.quiet)
     print_summary(s)

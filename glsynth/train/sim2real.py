@@ -29,6 +29,7 @@ import os
 import time
 
 from ..dataformat import sample_ids
+from ..errors import InputError, UnavailableError
 from ..io.images import write_text
 
 log = logging.getLogger(__name__)
@@ -59,7 +60,7 @@ def check_real(path, layout) -> int:
     from .evaluate import read_real
     n = sum(1 for _ in read_real(path, layout))
     if n == 0:
-        raise ValueError(f"{path}: no usable real images in layout {layout!r}")
+        raise InputError(f"{path}: no usable real images in layout {layout!r}")
     return n
 
 
@@ -143,9 +144,9 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
     from .trainer import best_path, train
     out = os.fspath(out)
     if minutes <= 0:
-        raise ValueError(f"--minutes must be > 0, got {minutes}")
+        raise InputError(f"--minutes must be > 0, got {minutes}")
     if not 0 <= gen_share < 1:
-        raise ValueError(f"--gen-share must be in [0, 1), got {gen_share}")
+        raise InputError(f"--gen-share must be in [0, 1), got {gen_share}")
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     val_layout = val_layout or layout
     state = _load_state(out)
@@ -180,7 +181,7 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
         spent["generate"] = sum(p["seconds"] for p in state["parts"])
         _save_state(out, state)
         if not folders:
-            raise RuntimeError(f"no data was generated within {minutes} minutes")
+            raise UnavailableError(f"no data was generated within {minutes} minutes")
     n_images = sum(len(sample_ids(f)) for f in folders)
 
     # 2. training: its length in steps fixed once from a timing of real steps
@@ -291,8 +292,8 @@ def register(sub):
 
 def cmd_sim2real(args):
     from ..config import load_config
-    from .cli import _threads, print_summary
-    _threads(args)
+    from .cli import print_summary, set_threads
+    set_threads(args)
     cfg = load_config(args.config, args.set or ())
     s = sim2real(cfg, args.real, args.layout, args.minutes, args.out, val=args.val,
                  val_layout=args.val_layout, resume=args.resume, data=args.data, device=args.device,
