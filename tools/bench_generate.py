@@ -1,6 +1,7 @@
 """End-to-end generation throughput and blend cost, measured in one run.
 
     .venv/bin/python tools/bench_generate.py [--views 40] [--short 10] [--repeats 3] [--blend-steps 400]
+        [--workers 1,2] [--no-lesions] [--features]
 
 1. Annotated 512x512 samples per second for the default config (bodies cached, lesions
    pasted and blended beforehand) with 1 and 2 worker processes, with the per-stage split
@@ -18,6 +19,9 @@
    (what leaving out unused passes, read-backs and writes saves), with the CPU time per
    sample in the steady state (all processes; on 2 cores, samples/s can be at most
    2000 / core-ms).
+4. With ``--features``: the default targets with each realism feature of the default
+   config turned off in turn (skin shading, micro-detail, clinical framing, flash,
+   shadows, MSAA, camera model, clinical backdrops), against the default row.
 """
 from __future__ import annotations
 
@@ -92,6 +96,32 @@ def _views_run(overrides, workers, repeats, prepared, views, short):
     return med(steady), med(cpu), med(fixed), med(end_to_end), manifest
 
 
+# What each realism feature of the default config costs: the views stage with it off.
+FEATURES = (
+    ("skin shading, detail and hair (-> Phong)", ["views.shading=phong"]),
+    ("micro-detail and hair", ["views.detail=false"]),
+    ("clinical framing (-> in-the-wild only)", ["views.framing={wild: 1.0}"]),
+    ("flash", ["views.flash=0", "views.closeup_flash=0"]),
+    ("soft shadows", ["views.shadows=false"]),
+    ("4x MSAA", ["views.multisample=0"]),
+    ("camera model", ["photo.enabled=false"]),
+    ("clinical backdrops (-> rooms)", ["backgrounds.clinical=0"]),
+)
+
+
+def _feature_costs(default_rate, args, prepared):
+    """Steady-state rate and CPU per sample with each feature off (1 worker), against
+    the default row measured in the same run."""
+    print("## What each feature costs (default targets, 1 worker, the feature turned off)\n")
+    print("| turned off | override | samples/s, steady state | CPU core-ms per sample | default / this |")
+    print("|---|---|---:|---:|---:|")
+    for name, overrides in FEATURES:
+        rate, cpu, _, _, _ = _views_run(overrides, 1, args.repeats, prepared, args.views, args.short)
+        print(f"| {name} | `{' '.join(overrides)}` | {rate:.2f} | {cpu:.0f} | {default_rate / rate:.2f} |",
+              flush=True)
+    print()
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--views", type=int, default=40, help="views per body (2 bodies), longer run")
@@ -101,6 +131,8 @@ def main(argv=None):
     ap.add_argument("--workers", default="1,2",
                     help="comma-separated worker counts for the default and RGB-only rows")
     ap.add_argument("--no-lesions", action="store_true", help="leave out the seconds-per-lesion table")
+    ap.add_argument("--features", action="store_true",
+                    help="also time the default targets with each realism feature turned off in turn")
     args = ap.parse_args(argv)
     counts = tuple(int(n) for n in args.workers.split(","))
     base = [f"views.per_body={args.views}"]
@@ -132,6 +164,8 @@ def main(argv=None):
           f"workers (default): {rows[('default (5 targets)', most)] / rows[('default (5 targets)', one)]:.2f}x")
     print(f"GL_RENDERER: {man['gl_renderer']}\n")
 
+    if args.features:
+        _feature_costs(rows[("default (5 targets)", one)], args, prepared)
     if args.no_lesions:
         shutil.rmtree(prepared)
         return
