@@ -33,10 +33,13 @@ def split(real, out):
     for k, name in enumerate(("even", "odd")):
         folder = os.path.join(out, "folds", name)
         os.makedirs(folder, exist_ok=True)
-        for sid in ids[k::2]:
-            link = os.path.join(folder, sid)
-            if not os.path.lexists(link):
-                os.symlink(os.path.abspath(os.path.join(real, sid)), link)
+        for sid in ids[k::2]:   # a folder per image of links to its files (the readers
+            src = os.path.abspath(os.path.join(real, sid))   # walk no linked folder)
+            os.makedirs(os.path.join(folder, sid), exist_ok=True)
+            for f in os.listdir(src):
+                link = os.path.join(folder, sid, f)
+                if not os.path.lexists(link):
+                    os.symlink(os.path.join(src, f), link)
         for f in os.listdir(real):                      # the metadata CSV, if any
             if f.endswith(".csv") and not os.path.lexists(os.path.join(folder, f)):
                 os.symlink(os.path.abspath(os.path.join(real, f)), os.path.join(folder, f))
