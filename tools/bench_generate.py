@@ -109,16 +109,26 @@ FEATURES = (
 )
 
 
-def _feature_costs(default_rate, args, prepared):
-    """Steady-state rate and CPU per sample with each feature off (1 worker), against
-    the default row measured in the same run."""
+def _feature_costs(args, prepared):
+    """CPU per sample with each feature off against the default measured just before it
+    (this VM's speed drifts by 10-30% within minutes, so each pair runs back to back).
+    Each is the whole CPU time of a ``--views`` run over its samples: the difference of
+    two runs, which the steady state uses, is too noisy for a ~10% effect."""
     print("## What each feature costs (default targets, 1 worker, the feature turned off)\n")
-    print("| turned off | override | samples/s, steady state | CPU core-ms per sample | default / this |")
+    print(f"Each row: CPU core-ms per sample of {2 * args.views}-sample runs (whole run), the default "
+          f"and then the feature off, back to back; medians of {args.repeats}.\n")
+    print("| turned off | override | default | with it off | the feature's share |")
     print("|---|---|---:|---:|---:|")
+    views = [f"views.per_body={args.views}"]
     for name, overrides in FEATURES:
-        rate, cpu, _, _, _ = _views_run(overrides, 1, args.repeats, prepared, args.views, args.short)
-        print(f"| {name} | `{' '.join(overrides)}` | {rate:.2f} | {cpu:.0f} | {default_rate / rate:.2f} |",
-              flush=True)
+        on, off = [], []
+        for _ in range(args.repeats):
+            n, _, c, _ = _timed_run(views, 1, prepared)
+            on.append(1e3 * c / n)
+            n, _, c, _ = _timed_run(overrides + views, 1, prepared)
+            off.append(1e3 * c / n)
+        a, b = statistics.median(on), statistics.median(off)
+        print(f"| {name} | `{' '.join(overrides)}` | {a:.0f} | {b:.0f} | {(a - b) / a:+.0%} |", flush=True)
     print()
 
 
@@ -165,7 +175,7 @@ def main(argv=None):
     print(f"GL_RENDERER: {man['gl_renderer']}\n")
 
     if args.features:
-        _feature_costs(rows[("default (5 targets)", one)], args, prepared)
+        _feature_costs(args, prepared)
     if args.no_lesions:
         shutil.rmtree(prepared)
         return
