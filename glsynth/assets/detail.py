@@ -11,8 +11,8 @@ views see their average and close-ups their structure:
   albedo change (darker furrows, melanin speckle; mean 0 over the tile), A the pore
   opening (0..1). Floats keep the tile's means exact (8 bits would tilt a far view's
   normal by the rounding of the mean slope);
-  the shader projects it on the surface three times (triplanar, from 3D positions), so it
-  needs no UVs and has no seams.
+  the shader projects it from 3D positions along the two world axes nearest the
+  surface normal (shaders/skin.frag), so it needs no UVs and has no seams.
 * the **hair tile** (``HAIR_PERIOD`` metres square) holds hair strands lying along the
   tile's +x (the hair-flow direction, see :func:`hair_coordinates`), as coverage in four
   groups: R, G terminal hair (long, thick), B, A vellus hair (short, fine). A body's hair
@@ -179,5 +179,5 @@ def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
 
 @lru_cache(maxsize=2)
 def detail_tiles(seed: int = 0) -> DetailTiles:
-    """The relief and hair tiles for ``seed`` (made once per process, ~1 s)."""
+    """The relief and hair tiles for ``seed`` (made once per process, ~2 s on 2 cores)."""
     return DetailTiles(_relief_tile(seed), _hair_tile(seed))
