@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import MeshError
 
-__all__ = ["Mesh", "MeshError", "SkinSurface"]
+__all__ = ["Mesh", "MeshError", "SkinSurface", "grid_faces"]
 
 log = logging.getLogger(__name__)
 
@@ -235,6 +235,14 @@ class Mesh:
             return cls(name=str(path), require_texture=require_texture, **arrays)
         except MeshError as exc:
             raise MeshError(str(exc)) from None
+
+
+def grid_faces(n: int) -> np.ndarray:
+    """Faces of an n x n grid of vertices numbered row by row: two triangles per cell,
+    (k, k+1, k+n+1) and (k, k+n+1, k+n), all turned the same way."""
+    idx = np.arange(n * n).reshape(n, n)
+    return np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
+                           np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
 
 
 def _as_rgb_texture(tex, name) -> np.ndarray:

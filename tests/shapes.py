@@ -3,6 +3,7 @@ import numpy as np
 import trimesh
 
 import glsynth as gs
+from glsynth.mesh import grid_faces
 
 
 def random_texture(rng, h=64, w=64):
@@ -31,6 +32,20 @@ def sphere(rng, radius=0.3, subdivisions=4):
     return gs.Mesh(v, s.faces, uvs=uv, texture=random_texture(rng), name="sphere")
 
 
+def textured_view(renderer, rng, shape, max_texture):
+    """``shape(rng)`` with a random texture of random size (16 to max_texture texels a
+    side), and a camera 0.8-3 away in a random direction, looking near the origin with a
+    random field of view: (mesh, texture, camera)."""
+    mesh = shape(rng)
+    tex = (rng.random((int(rng.integers(16, max_texture)), int(rng.integers(16, max_texture)), 3)) * 255
+           ).astype(np.uint8)
+    d = rng.normal(size=3)
+    eye = d / np.linalg.norm(d) * rng.uniform(0.8, 3.0)
+    cam = gs.Camera.look_at(eye, rng.normal(scale=0.05, size=3), width=renderer.width,
+                            height=renderer.height, fov_deg=rng.uniform(20, 60))
+    return mesh.copy_with(texture=tex), tex, cam
+
+
 def ray_face_depth(mesh, cam, rows, cols, face_ids):
     """Closed-form depth of the pixel rays hitting the plane of the given faces."""
     o, d = cam.pixel_rays(rows, cols)
@@ -52,9 +67,7 @@ def skin_sheet(rng, n=40, tex=1024, blur=6.0, amplitude=60.0, nonskin=0):
     u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
     theta = (u - 0.5) * 1.2
     verts = np.stack([0.5 * np.sin(theta), v * 0.6, 0.5 * np.cos(theta)], -1).reshape(-1, 3)
-    idx = np.arange(n * n).reshape(n, n)
-    faces = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
-                            np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    faces = grid_faces(n)
     noise = cv2.GaussianBlur(rng.normal(size=(tex, tex)).astype(np.float32), (0, 0), blur)
     texture = np.clip(np.array([205, 160, 135], np.float32) + amplitude * noise[..., None], 0, 255)
     mesh = gs.Mesh(verts, faces, uvs=np.stack([u, v], -1).reshape(-1, 2),

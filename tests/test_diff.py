@@ -6,7 +6,7 @@ import torch
 import glsynth as gs
 from glsynth import diff
 from glsynth.lighting import Material, PointLight
-from shapes import box, sphere
+from shapes import box, sphere, textured_view
 
 
 def _random_lights(rng, cam, n):
@@ -18,13 +18,7 @@ def _random_lights(rng, cam, n):
 
 @pytest.mark.parametrize("trial", range(4))
 def test_torch_shading_matches_gl(renderer, rng, trial):
-    mesh = (sphere if trial % 2 == 0 else box)(rng)
-    tex = (rng.random((int(rng.integers(16, 300)), int(rng.integers(16, 300)), 3)) * 255).astype(np.uint8)
-    mesh = mesh.copy_with(texture=tex)
-    d = rng.normal(size=3)
-    eye = d / np.linalg.norm(d) * rng.uniform(0.8, 3.0)
-    cam = gs.Camera.look_at(eye, rng.normal(scale=0.05, size=3), width=renderer.width,
-                            height=renderer.height, fov_deg=rng.uniform(20, 60))
+    mesh, tex, cam = textured_view(renderer, rng, sphere if trial % 2 == 0 else box, max_texture=300)
     lights = _random_lights(rng, cam, int(rng.integers(1, 4)))
     mat = Material(specular=rng.uniform(0, 0.6, 3), shininess=rng.uniform(1, 200))
     out = renderer.render(mesh, cam, passes=("gbuffer", "rgb"), lights=lights, material=mat)

@@ -10,8 +10,8 @@ from glsynth import diff
 from glsynth.assets import detail
 from glsynth.assets.hairflow import hair_coordinates
 from glsynth.lighting import Material, PointLight
-from glsynth.mesh import SkinSurface
-from shapes import box, sphere
+from glsynth.mesh import SkinSurface, grid_faces
+from shapes import box, sphere, textured_view
 
 
 def _skin_material(rng, **kw):
@@ -21,13 +21,7 @@ def _skin_material(rng, **kw):
 
 @pytest.mark.parametrize("trial", range(4))
 def test_torch_skin_reflectance_matches_gl(renderer, rng, trial):
-    mesh = (sphere if trial % 2 == 0 else box)(rng)
-    tex = (rng.random((int(rng.integers(16, 200)), int(rng.integers(16, 200)), 3)) * 255).astype(np.uint8)
-    mesh = mesh.copy_with(texture=tex)
-    d = rng.normal(size=3)
-    eye = d / np.linalg.norm(d) * rng.uniform(0.8, 3.0)
-    cam = gs.Camera.look_at(eye, rng.normal(scale=0.05, size=3), width=renderer.width,
-                            height=renderer.height, fov_deg=rng.uniform(20, 60))
+    mesh, tex, cam = textured_view(renderer, rng, sphere if trial % 2 == 0 else box, max_texture=200)
     lights = [PointLight(np.asarray(cam.eye) + rng.normal(scale=0.3, size=3), ambient=rng.uniform(0, 0.6),
                          diffuse=rng.uniform(0.2, 1.5)) for _ in range(int(rng.integers(1, 3)))]
     lights.append(PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(0.2, 0.6)))  # a flash
@@ -47,9 +41,7 @@ def _skin_plane(rng, half=0.5, n=24, weight=None, params=(170, 200, 255, 150), t
     xs = np.linspace(-half, half, n)
     xx, yy = np.meshgrid(xs, xs)
     v = np.stack([xx.ravel(), yy.ravel(), np.zeros(n * n)], 1)
-    idx = np.arange(n * n).reshape(n, n)
-    f = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
-                        np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    f = grid_faces(n)
     uv = (v[:, :2] + half) / (2 * half)
     tex = np.full((tex_size, tex_size, 3), (196, 150, 128), np.uint8)
     hair = v[f][..., :2].astype(np.float32)            # s = x, t = y

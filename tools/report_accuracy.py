@@ -43,6 +43,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 import glsynth as gs  # noqa: E402
+from glsynth.mesh import grid_faces  # noqa: E402
 
 log = logging.getLogger("report_accuracy")
 
@@ -518,9 +519,7 @@ def _sheet_scene(ctx, view, tex=1024):
     u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
     theta = (u - 0.5) * 1.2
     verts = np.stack([0.5 * np.sin(theta), v * 0.6, 0.5 * np.cos(theta)], -1).reshape(-1, 3)
-    idx = np.arange(n * n).reshape(n, n)
-    faces = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
-                            np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    faces = grid_faces(n)
     uvs = np.stack([u, v], -1).reshape(-1, 2)
     noise = cv2.GaussianBlur(rng.normal(size=(tex, tex)).astype(np.float32), (0, 0), 6)
     texture = np.clip(np.array([205, 160, 135], np.float32) + 60 * noise[..., None], 0, 255).astype(np.uint8)

@@ -53,7 +53,7 @@ def condition_patch(fields, fitzpatrick, rng, texture_size=256):
     condition ``fields`` (morphology.LesionFields) over it as a decal at the grid's own
     resolution, and skin micro-detail (relief, pores, vellus hair)."""
     import glsynth as gs
-    from ..mesh import SkinSurface
+    from ..mesh import SkinSurface, grid_faces
     from ..pipeline.decals import DETAIL_RANGE, SLOPE_RANGE, Decals, projection_rows
     from .lesions import reference_skin
     from .morphology import apply_to_skin
@@ -62,9 +62,7 @@ def condition_patch(fields, fitzpatrick, rng, texture_size=256):
     xs = np.linspace(-half, half, n)
     xx, yy = np.meshgrid(xs, xs)
     v = np.stack([xx.ravel(), yy.ravel(), np.zeros(n * n)], 1)
-    idx = np.arange(n * n).reshape(n, n)
-    f = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
-                        np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    f = grid_faces(n)
     uv = (v[:, :2] + half) / (2 * half)
     size = fields.size
     skin = reference_skin(fitzpatrick, size, rng)
