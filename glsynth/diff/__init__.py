@@ -231,15 +231,18 @@ DECAL_SLOPE = 2.0   # pipeline.decals.SLOPE_RANGE
 
 def _decal_pyramid(decals, name, device, dtype):
     """Mip levels (N x C x h x w tensors, 0..1) of the decal layers, each the 2x2 mean of
-    the one before (GL's mipmaps of the half-float decal textures); kept on the Decals
-    object."""
+    the one before, rounded to half floats as GL stores every level of the half-float
+    decal textures (without the rounding a sharp glossy highlight differs by 3/255);
+    kept on the Decals object."""
     cache = decals.__dict__.setdefault("_torch_pyramids", {})
     key = (name, str(device), dtype)
     if key not in cache:
-        arr = torch.as_tensor(getattr(decals, name), device=device).to(dtype) / 255.0
+        def as_half(x):
+            return x.to(torch.float16).to(dtype)
+        arr = as_half(torch.as_tensor(getattr(decals, name), device=device).to(dtype) / 255.0)
         levels = [arr.permute(0, 3, 1, 2)]
         while levels[-1].shape[-1] > 1:
-            levels.append(F.avg_pool2d(levels[-1], 2))
+            levels.append(as_half(F.avg_pool2d(levels[-1], 2)))
         cache[key] = levels
     return cache[key]
 
