@@ -59,12 +59,15 @@ def test_decal_labels_equal_a_full_resolution_texture(renderer, rng):
     full[d // 2:d // 2 + d, d // 2:d // 2 + d] = decals.instances[0]
     coarse = np.zeros((32, 32), np.uint16)                 # what a body texture would hold
     for _ in range(3):
-        cam = random_view(renderer, rng)
+        for _ in range(20):          # a close random view may miss all three blobs: redraw
+            cam = random_view(renderer, rng)
+            b = renderer.render(mesh.copy_with(decals=None), cam, passes=("labels",),
+                                label_textures={"instances": full})["instances"]
+            if (b > 0).sum() > 200:
+                break
+        assert (b > 0).sum() > 200, "20 random views saw no blob"
         a = renderer.render(mesh, cam, passes=("labels",), label_textures={"instances": coarse},
                             decal_labels="instances")["instances"]
-        b = renderer.render(mesh.copy_with(decals=None), cam, passes=("labels",),
-                            label_textures={"instances": full})["instances"]
-        assert (b > 0).sum() > 200
         differ = a != b
         assert differ.mean() < 0.002, f"{differ.sum()} of {differ.size} label pixels differ"
         # the few that differ lie on an edge between ids (rounding of the same boundary)
