@@ -8,9 +8,10 @@
 // * specular: one GGX lobe with Smith masking and Schlick's Fresnel (F0 0.028, skin's
 //   refractive index 1.4); sebum (the per-body oiliness map) sharpens and raises it.
 // With DETAIL, micro-detail that no body texture could hold (glsynth.assets.detail):
-// the relief tile projected from the world position along the two axes nearest the normal (furrows and pores as a
-// normal perturbation and cavity darkening), and with HAIR, hair strands from the hair
-// tile in per-vertex hair-flow coordinates, shaded as fibres (Kajiya-Kay) and casting
+// the relief tile projected from the world position along the two axes nearest the
+// normal, at two scales (furrows and pores as a normal perturbation and cavity
+// darkening), and with HAIR, hair strands from the hair tile in per-vertex hair-flow
+// coordinates, shaded as fibres (Kajiya-Kay) and casting
 // a short parallax shadow. Both are scaled by the per-body skin parameters (u_params)
 // and by the texture's alpha, the detail weight: 0 on non-skin, so clothing, scalp hair
 // and eyes get none. Tiles are sampled at an explicit level of detail from the pixel's
@@ -49,6 +50,8 @@ uniform float u_relief_period;     // scene units per relief tile
 uniform float u_relief_size;       // texels per relief tile
 uniform float u_relief_amount;     // scales the relief (Material.relief)
 uniform float u_pore_mean;         // mean of the relief tile's pore channel
+uniform float u_macro_scale;       // the tile's second, coarser reading (detail.MACRO_SCALE)
+uniform float u_macro_weight;      // and its share (detail.MACRO_WEIGHT)
 #endif
 #if HAIR
 uniform sampler2D u_hair;          // hair tile: RG terminal, BA vellus coverage
@@ -135,6 +138,12 @@ void main() {
     vec3 u1, v1, u2, v2;
     vec4 p1 = relief_along(i1, world, lod, u1, v1);
     vec4 p2 = relief_along(i2, world, lod, u2, v2);
+    // the same tile u_macro_scale times larger, offset: coarser furrows across several
+    // plateaus, and the sum of two incommensurate periods does not repeat
+    vec3 macro_at = world / u_macro_scale + vec3(0.37, 0.61, 0.23) * u_relief_period;
+    float macro_lod = lod - log2(u_macro_scale);
+    p1.rgb += u_macro_weight * relief_along(i1, macro_at, macro_lod, u1, v1).rgb;
+    p2.rgb += u_macro_weight * relief_along(i2, macro_at, macro_lod, u2, v2).rgb;
     // the height gradient of each projection in world axes, blended, then kept in the
     // tangent plane (the surface gradient)
     // lichenified skin (detail weight above 1) deepens the relief

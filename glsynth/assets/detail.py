@@ -4,12 +4,13 @@ a tenth of a millimetre, independent of any body texture's resolution.
 The shader (``shaders/skin.glsl``) samples two periodic tiles with mipmaps, so that far
 views see their average and close-ups their structure:
 
-* the **relief tile** (``RELIEF_PERIOD`` metres square) holds the skin's microrelief: a
-  network of primary furrows (the rhombic/polygonal "glyphic" pattern, cells ~0.7 mm)
-  and finer secondary furrows inside the cells, pores at furrow junctions, and a fine
-  roughness. Half floats: R, G the height slope along the tile's x and y, B the relative
-  albedo change (darker furrows, melanin speckle; mean 0 over the tile), A the pore
-  opening (0..1). Floats keep the tile's means exact (8 bits would tilt a far view's
+* the **relief tile** (``RELIEF_PERIOD`` metres square) holds the skin's microrelief:
+  irregular polygonal plateaus (~0.45 mm, domed) between primary furrows, finer
+  secondary furrows inside them, long wavy tension lines, pores and a fine roughness.
+  The shader also reads it at ``MACRO_SCALE`` times the size, for the coarser furrows
+  that cross several plateaus (and so that the tile's period does not show). Half
+  floats: R, G the height slope along the tile's x and y, B the relative albedo change
+  (darker furrows, melanin speckle; mean 0 over the tile), A the pore opening (0..1). Floats keep the tile's means exact (8 bits would tilt a far view's
   normal by the rounding of the mean slope);
   the shader projects it from 3D positions along the two world axes nearest the
   surface normal (shaders/skin.frag), so it needs no UVs and has no seams.
@@ -31,12 +32,14 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 RELIEF_PERIOD = 0.008     # metres covered by one relief tile
 RELIEF_SIZE = 1024        # texels (7.8 um each)
 HAIR_PERIOD = 0.016       # metres covered by one hair tile
 HAIR_SIZE = 2048          # texels (7.8 um each)
-DETAIL_VERSION = 1        # part of the body cache key: bump when the tiles change
+MACRO_SCALE = 4.37        # the relief tile's second, coarser reading (incommensurate)
+MACRO_WEIGHT = 0.3        # its share of the relief
 # skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
 # only, moderate sebum (RGBA: relief, pores, hair density, oiliness)
 DEFAULT_PARAMS = (140, 80, 64, 100)
@@ -70,10 +73,6 @@ def _wrap_blur(img, sigma):
     return cv2.GaussianBlur(big, (0, 0), sigma)[pad:-pad, pad:-pad]
 
 
-# Line directions (a, b) whose lines a x + b y = const tile a square exactly.
-_DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1), (2, 1), (1, 2), (2, -1), (1, -2))
-
-
 def _line_family(rng, size, spacing_px, direction, warp, fade):
     """Distance (texels) to the nearest line of a family of wavy, parallel lines that tile
     the square (lines a x + b y = k size / m, their phase bent by periodic noise of
@@ -89,26 +88,37 @@ def _line_family(rng, size, spacing_px, direction, warp, fade):
     return dist, strength
 
 
-def _furrows(rng, size, um, spacing_um, depth_um, width_um, n_families, fade):
-    """Height (um, <= 0) of crossing families of furrows: skin's rhombic microrelief."""
-    first = int(rng.integers(len(_DIRECTIONS)))
-    picks = [first] + list(rng.permutation([i for i in range(len(_DIRECTIONS)) if i != first]))
-    h = np.zeros((size, size), np.float32)
-    for k, i in enumerate(picks[:n_families]):
-        dist, strength = _line_family(rng, size, spacing_um / um * rng.uniform(0.8, 1.25),
-                                      _DIRECTIONS[i], 0.35, fade)
-        depth = depth_um * (1.0 if k < 2 else 0.6)       # two main directions, a weaker third
-        h = np.minimum(h, -depth * strength * np.clip(1 - dist / (width_um / um), 0, 1) ** 1.5)
-    return h
+def _cell_walls(rng, size, cell_px, stretch):
+    """Distance (texels) to the nearest wall of a periodic Voronoi tessellation with cells
+    about ``cell_px`` wide, stretched ``stretch`` times along x (plateaus elongate along
+    the skin's tension lines), and each texel's cell index."""
+    n = max(4, int(round((size / cell_px) ** 2)))
+    sites = rng.uniform(0, size, (n, 2))
+    shifts = np.array([(dx, dy) for dx in (-size, 0, size) for dy in (-size, 0, size)])
+    scale = np.array([1.0 / stretch, 1.0])
+    tiled = (sites[None] + shifts[:, None]).reshape(-1, 2) * scale
+    yy, xx = np.mgrid[0:size, 0:size] + 0.5
+    d, i = cKDTree(tiled).query(np.stack([xx.ravel(), yy.ravel()], 1) * scale, k=2)
+    # distance to the bisector of the two nearest sites: exactly the distance to the wall
+    wall = (d[:, 1] ** 2 - d[:, 0] ** 2) / (2 * np.linalg.norm(tiled[i[:, 1]] - tiled[i[:, 0]], axis=1))
+    return wall.reshape(size, size).astype(np.float32), (i[:, 0] % n).reshape(size, size)
 
 
 def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     rng = np.random.default_rng([seed, 1])
     um = period * 1e6 / size                                        # micrometres per texel
-    # primary furrows: families of lines ~0.6 mm apart crossing into rhombi, 40 um deep,
-    # V-shaped ~70 um across; secondary furrows ~0.2 mm apart, 10 um deep
-    primary = _furrows(rng, size, um, 600.0, 40.0, 35.0, 3, 0.25)
-    secondary = _furrows(rng, size, um, 200.0, 10.0, 14.0, 3, 0.45)
+    # primary furrows: the walls between irregular polygonal plateaus ~0.45 mm across,
+    # ~30 um deep (varying in patches) with a ~20 um V, and plateaus domed by 10 um
+    wall, cell = _cell_walls(rng, size, 450 / um, 1.5)
+    depth = 30.0 * np.clip(0.75 + 0.4 * _periodic_noise(rng, size, 600 / um), 0.2, 1.3)
+    primary = -depth * np.exp(-wall / (20 / um)) - 10.0 * np.exp(-wall / (110 / um))
+    # secondary furrows: cells ~0.15 mm, 7 um deep, in patches
+    wall2, _ = _cell_walls(rng, size, 150 / um, 1.2)
+    secondary = -7.0 * np.exp(-wall2 / (8 / um)) * np.clip(0.5 + 0.5 * _periodic_noise(rng, size, 300 / um), 0, 1)
+    # tension lines: long wavy furrows ~1.5 mm apart along the plateaus' long axis, fading
+    dist, strength = _line_family(rng, size, 1500 / um, (0, 1), 0.3, 0.5)
+    tension = -30.0 * strength * np.exp(-dist / (30 / um))
+    furrows = primary + secondary + tension
     # pores (follicular openings, 40-60 um across) on a jittered ~0.9 mm grid, half kept
     pores = np.zeros((size, size), np.float32)
     g = int(round(period / 0.0009))
@@ -125,14 +135,16 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     pores = _wrap_blur(pores, 6.0 / um)
     # fine roughness: 2 um bumps ~25 um wide
     rough = 2.0 * _periodic_noise(rng, size, 25.0 / um)
-    height = primary + secondary + rough - 25.0 * pores               # micrometres
+    height = furrows + rough - 25.0 * pores                          # micrometres
     gy = (np.roll(height, -1, 0) - np.roll(height, 1, 0)) / (2 * um)  # slope (um / um)
     gx = (np.roll(height, -1, 1) - np.roll(height, 1, 1)) / (2 * um)
-    # albedo: furrows a little darker (shadowed, thinner stratum corneum over them) and
-    # melanin speckle (+-5% in patches ~0.1-0.3 mm); mean 0 over the tile
-    cavity = np.clip(-(primary + secondary) / 40.0, 0, 1)
+    # albedo: furrows a little darker (shadowed, thinner stratum corneum over them; the
+    # relief's shading does most of it), melanin speckle (+-5% in patches ~0.1-0.3 mm)
+    # and each plateau a shade lighter or darker; mean 0 over the tile
+    cavity = np.clip(-(furrows - furrows.mean()) / 40.0, 0, 1)
     speckle = 0.6 * _periodic_noise(rng, size, 60.0 / um) + 0.4 * _periodic_noise(rng, size, 180.0 / um)
-    shade = -0.25 * cavity + 0.05 * speckle
+    plateau = rng.standard_normal(cell.max() + 1)[cell]
+    shade = -0.12 * cavity + 0.05 * speckle + 0.02 * plateau
     shade -= shade.mean()
     return np.stack([gx, gy, shade, np.clip(pores, 0, 1)], -1).astype(np.float16)
 

@@ -16,6 +16,7 @@ import cv2
 import moderngl
 import numpy as np
 
+from ..assets.detail import MACRO_SCALE, MACRO_WEIGHT
 from ..camera import Camera
 from ..errors import InputError
 from ..lighting import Material, PointLight, check_lights
@@ -686,7 +687,8 @@ class Renderer:
             tiles["relief"].use(SKIN_UNITS[1])
             tiles["hair"].use(SKIN_UNITS[2])
             values.update(u_relief_period=t.relief_period * unit, u_relief_size=float(t.relief.shape[0]),
-                          u_pore_mean=tiles["pore_mean"], u_hair_period=t.hair_period * unit,
+                          u_pore_mean=tiles["pore_mean"], u_macro_scale=MACRO_SCALE,
+                          u_macro_weight=MACRO_WEIGHT, u_hair_period=t.hair_period * unit,
                           u_hair_size=float(t.hair.shape[0]), u_unit=unit)
             if mesh.skin is not None:
                 values["u_hair_rgb"] = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
