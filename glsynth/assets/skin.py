@@ -463,9 +463,17 @@ class _Painter:
         mid = tx.interp(nz.fbm(self.v + 17.0, 25.0, 2))
         hue = tx.interp(nz.fbm(self.v - 31.0, 8.0, 2))
         blotch = tx.interp(nz.fbm(self.v + 3.0, 50.0, 2))
-        L = L0 + 2.4 * low + 1.4 * mid
-        a = a0 + 1.4 * hue + 0.8 * mid + 1.0 * vis * np.clip(blotch, 0, None)
-        b = b0 + 0.8 * low - 0.6 * hue
+        L = L0 + 4.0 * low + 3.0 * mid
+        a = a0 + 3.0 * hue + 1.5 * mid + 3.5 * vis * np.clip(blotch, 0, None)
+        b = b0 + 1.5 * low - 1.2 * hue
+        # mottling at the scale of millimetres (per texel): uneven melanin and the
+        # superficial vascular plexus showing through, what makes real skin up close
+        # anything but an even colour
+        melanin = nz.fbm(p + 41.0, 110.0, 3)
+        blood = nz.fbm(p - 57.0, 140.0, 3)
+        L += 4.0 * melanin - 1.5 * vis * np.clip(blood, 0, None)
+        a += 4.0 * vis * blood
+        b += 2.0 * melanin
         # pores / fine grain per texel, scaled to the texel footprint
         fine = nz(p, 0.45 / self.texel_m)
         pores = _smoothstep(0.45, 0.9, nz(p + 3.0, 0.3 / self.texel_m))
@@ -480,6 +488,15 @@ class _Painter:
         exposed = np.clip(tx.ch["head"] + tx.ch["hands"] + 0.6 * tx.ch["arms"], 0, 1)
         L -= 1.2 * exposed
         b += 0.6 * exposed
+        # photo-ageing on exposed skin of older bodies: solar lentigines (flat brown
+        # macules, 3-10 mm, kept faint: they are labelled skin), uneven pigment and fine facial telangiectasia
+        old = float(np.clip((self.look.age - 0.6) / 0.4, 0, 1))
+        if old > 0:
+            sun = old * np.clip(exposed + 0.5 * tx.ch["torso"] * _smoothstep(0.2, 0.8, n[:, 1]), 0, 1)
+            spots = _smoothstep(0.42, 0.6, nz.fbm(p + 23.0, 90.0, 2)) * sun
+            L -= (6.0 - 3.0 * dark) * spots + 2.5 * sun * np.abs(melanin)
+            b += 4.0 * spots
+            a += 1.5 * spots + 3.0 * vis * old * tx.ch["head"] * np.clip(blood, 0, None)
         # redness: a vertex field (radii >= 9 mm), interpolated
         pv = self.v
         red = np.zeros(len(pv), np.float32)
