@@ -277,18 +277,27 @@ def _nevus(b, rng, R):
 
 def _melanoma(b, rng, R):
     c = b.c
+    # a third are lentigo maligna-like: flat, ill-defined, tan to brown, on sun-damaged skin
+    lentigo = rng.random() < 0.35
     sd = c.shape("round", R, aspect=rng.uniform(0.6, 0.95), irregular=rng.uniform(0.15, 0.3), warp=0.15)
-    w = b.weight(sd, R * 0.3, "ill-defined" if rng.random() < 0.4 else "sharp")
+    w = b.weight(sd, R * 0.3, "ill-defined" if lentigo or rng.random() < 0.4 else "sharp")
     d = c.noise(R / 2.5, 3) + 1.2 * (c.x * rng.normal() + c.y * rng.normal()) / R   # asymmetry
-    b.f["melanin_add"] += w * (0.08 + 0.45 * smoothstep(-1.0, 1.5, d))                # brown to black
+    # variegation at the scale of a millimetre, a coarse atypical network and dots
+    fine = c.noise(max(0.6, R / 12), 2)
+    net = 1 - smoothstep(0.0, 0.35, np.abs(c.noise(max(0.35, R / 25), 1)))
+    dots = smoothstep(1.6, 2.3, c.noise(max(0.25, R / 40), 1)) * smoothstep(-0.5, 0.8, d)
+    dark = (0.04, 0.2) if lentigo else (0.08, 0.45)
+    b.f["melanin_add"] += w * (dark[0] + dark[1] * smoothstep(-1.0, 1.5, d + 0.35 * fine)
+                               + 0.08 * net + 0.3 * dots)                            # tan/brown to black
     b.f["dermal_melanin"] += w * 0.015 * smoothstep(0.6, 1.8, c.noise(R / 3, 2))       # blue-grey veil
     b.erythema(w * smoothstep(0.5, 2.0, c.noise(R / 3, 2)), 1.5)
     regress = w * 0.7 * smoothstep(1.2, 2.4, c.noise(R / 3, 2))                        # regression
     b.mix("melanin_add", regress, 0.0)
     b.mix("melanin", regress, 0.6)
-    b.f["height"] += rng.uniform(0.0, 0.8) * smoothstep(0, R, sd)
+    if not lentigo:
+        b.f["height"] += rng.uniform(0.0, 0.8) * smoothstep(0, R, sd)
     b.outline(w, 0.35)
-    return {"irregularity": "high"}
+    return {"irregularity": "high", "subtype": "lentigo maligna" if lentigo else "superficial/nodular"}
 
 
 def _plaque(b, rng, R, shape, scale_colour, erythema, border="sharp", scale_cov=0.8, flake=1.5):
@@ -408,11 +417,16 @@ def _seb_keratosis(b, rng, R):
     sd = c.shape("oval", R, aspect=rng.uniform(0.6, 0.95), irregular=0.12, warp=0.06)
     w = b.weight(sd, R * 0.05)                                          # stuck-on: sharp
     b.f["melanin_add"] += w * (0.8 + 0.2 * c.noise(R / 4, 2)) * rng.uniform(0.05, 0.3)
-    warts = smoothstep(-0.5, 1.0, c.noise(max(0.4, R / 10), 2))
-    b.f["height"] += w * (0.6 + 0.4 * warts) * rng.uniform(0.5, 1.2)
-    b.f["detail"] *= 1 + 1.5 * w
-    cysts = smoothstep(1.4, 2.0, c.noise(max(0.3, R / 15), 1)) * w     # horn cysts
-    b.scale(cysts, 1.0, 0.3, "white")
+    # a dull, waxy, cerebriform surface: low ridges (gyri) between narrow fissures (sulci)
+    # that hold darker keratin, keratin plugs, and a few small milia-like cysts
+    sulci = 1 - smoothstep(0.0, 0.3, np.abs(c.noise(max(0.5, R / 8), 2)))
+    b.f["height"] += w * (0.5 - 0.25 * sulci) * rng.uniform(0.5, 1.1)
+    b.f["melanin_add"] += w * sulci * rng.uniform(0.05, 0.15)
+    plugs = smoothstep(1.7, 2.3, c.noise(max(0.3, R / 20), 1)) * w     # comedo-like openings
+    b.f["melanin_add"] += 0.4 * plugs
+    b.f["detail"] *= 1 + 0.8 * w
+    cysts = smoothstep(1.8, 2.4, c.noise(max(0.25, R / 25), 1)) * w     # milia-like cysts
+    b.scale(cysts, 0.6, 0.3, "white")
     b.outline(w, 0.4)
     return {}
 
