@@ -278,6 +278,22 @@ def test_every_preset_on_every_skin_type(preset):
             or f.f["height"][m].std() > 0.05, (preset, fitz)
 
 
+def test_melanoma_subtypes(rng):
+    """About a third of melanomas are lentigo maligna-like: flat and lighter on average
+    than the others, which may be raised; each records its subtype."""
+    from glsynth.assets.morphology import make_condition
+    seeds = rng.integers(2 ** 31, size=24)
+    kinds = {}
+    for seed in seeds:
+        f = make_condition("melanoma", [int(seed)], size=96)
+        sub = f.params["subtype"]
+        added = float((f.f["melanin_add"][f.mask]).mean())
+        kinds.setdefault(sub, []).append((float(np.abs(f.f["height"]).max()), added))
+    assert set(kinds) == {"lentigo maligna", "superficial/nodular"}, kinds.keys()
+    assert max(h for h, _ in kinds["lentigo maligna"]) < 1e-3
+    assert np.mean([a for _, a in kinds["lentigo maligna"]]) < np.mean([a for _, a in kinds["superficial/nodular"]])
+
+
 def test_erythema_darkens_more_than_it_reddens_on_dark_skin():
     """The same inflammation: pink on light skin, a darker, less red change on dark skin."""
     from glsynth.assets.lesions import reference_skin
