@@ -153,6 +153,12 @@ class Noise3D:
         return out / norm
 
 
+def _ageing(age: float, start: float = 0.75) -> float:
+    """How far past ``start`` anny's age parameter (1/3 child, 2/3 young adult, 1 old)
+    lies, 0 at ``start`` to 1 at the oldest."""
+    return float(np.clip((age - start) / (1.0 - start), 0, 1))
+
+
 def _smoothstep(e0, e1, x):
     t = np.clip((np.asarray(x, np.float32) - e0) / (e1 - e0), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
@@ -257,7 +263,7 @@ def sample_look(rng: np.random.Generator, ita: float, female: bool, age: float,
                 clothing=None) -> Look:
     """Seeded hair, eyes, clothing, nevi for a body (age: anny's 0..1 age parameter)."""
     dark = ita < 10
-    old = float(np.clip((age - 0.75) / 0.25, 0, 1))
+    old = _ageing(age)
     hair_p = {"black": 3 if dark else 1, "dark-brown": 3, "brown": 1 if dark else 3,
               "light-brown": 0.2 if dark else 2, "blond": 0.05 if dark else 1.5,
               "red": 0.02 if dark else 0.4, "grey": 0.1 + 3 * old, "white": 0.02 + 1.5 * old}
@@ -408,7 +414,7 @@ class _Painter:
         healthy skin, less on lips, areolae, nevi and nails, 0 under non-skin paint)."""
         tx, j, s, look = self.tx, self.j, self.scale, self.look
         p, n, ch = tx.pos, tx.nrm, tx.ch
-        old = float(np.clip((look.age - 0.75) / 0.25, 0, 1))
+        old = _ageing(look.age)
         eye = 0.5 * (j["eye.L"] + j["eye.R"])
         face = ch["head"] * _smoothstep(-0.2, 0.3, n[:, 2]) * (p[:, 1] < eye[1] + 0.07 * s)
         forehead = _gauss(p, eye + np.array([0, 0.045, 0.015]) * s, 0.03 * s)
@@ -489,8 +495,9 @@ class _Painter:
         L -= 1.2 * exposed
         b += 0.6 * exposed
         # photo-ageing on exposed skin of older bodies: solar lentigines (flat brown
-        # macules, 3-10 mm, kept faint: they are labelled skin), uneven pigment and fine facial telangiectasia
-        old = float(np.clip((self.look.age - 0.6) / 0.4, 0, 1))
+        # macules, 3-10 mm, kept faint: they are labelled skin), uneven pigment and fine
+        # facial telangiectasia; it starts earlier than the other signs of age
+        old = _ageing(self.look.age, start=0.6)
         if old > 0:
             sun = old * np.clip(exposed + 0.5 * tx.ch["torso"] * _smoothstep(0.2, 0.8, n[:, 1]), 0, 1)
             spots = _smoothstep(0.42, 0.6, nz.fbm(p + 23.0, 90.0, 2)) * sun
