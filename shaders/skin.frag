@@ -183,15 +183,17 @@ void main() {
     vec3 l0 = (u_light_pos[0] - world) / max(length(u_light_pos[0] - world), 1e-20);
     float lift = 0.00015 * u_unit / max(dot(ng, l0), 0.3);
     vec2 shift = lift * vec2(dot(l0, t_s) / max(length(t_s), 1e-20), dot(l0, t_t) / max(length(t_t), 1e-20));
-    vec4 hsh = textureLod(u_hair, (hc + shift) / u_hair_period, hlod);   // first layer only
-    hair_shadow = 2.0 * hsh.r * clamp(tt, 0.0, 0.5) + 0.5 * hsh.b * tv;
+    // (a level coarser: hairs stand at different heights and lights are not points, so
+    // their shadows are soft)
+    vec4 hsh = textureLod(u_hair, (hc + shift) / u_hair_period, hlod + 1.5);   // first layer only
+    hair_shadow = 1.2 * hsh.r * clamp(tt, 0.0, 0.5) + 0.4 * hsh.b * tv;
     fibre = fibre_dir;
 #endif
 #endif
     grad -= ng * dot(ng, grad);     // the surface gradient
     vec3 nd = ng - grad;
     n = nd / max(length(nd), 1e-20);
-    float roughness = mix(mix(u_roughness, 0.75 * u_roughness, oil), 0.12, gloss);
+    float roughness = mix(mix(u_roughness, 0.75 * u_roughness, oil), 0.2, gloss);
     float alpha = roughness * roughness;
     float a2 = alpha * alpha;
     float k = 0.5 * alpha;

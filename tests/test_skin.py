@@ -8,7 +8,7 @@ import trimesh
 import glsynth as gs
 from glsynth import diff
 from glsynth.assets import detail
-from glsynth.assets.hairflow import hair_coordinates
+from glsynth.assets.hairflow import hair_coordinates, hair_flow_quality
 from glsynth.lighting import Material, PointLight
 from glsynth.mesh import SkinSurface, grid_faces
 from shapes import box, sphere, textured_view
@@ -166,3 +166,36 @@ def test_hair_coordinates_follow_a_limb_isometrically():
     assert np.abs(np.einsum("nk,nk->n", J[..., 0], J[..., 1])).max() < 0.05
     # +s runs along the limb, away from the trunk side's... axis (here +-y): pure y
     assert np.allclose(np.abs(J[..., 0][:, 1]), 1, atol=0.03)
+
+
+def test_hair_fades_where_the_tile_would_stretch(rng):
+    # a limb with hemispherical ends (height: between the spheres' centres): the cylinder
+    # keeps the tile's size along its side, the ends turn across the axis (a coordinate
+    # unit there covers ever more skin: 1 / sin of the angle from the pole)
+    r, h = rng.uniform(0.03, 0.06), rng.uniform(0.2, 0.4)
+    cap = trimesh.creation.capsule(height=h, radius=r, count=[48, 48])
+    v = np.asarray(cap.vertices)[:, [0, 2, 1]] + np.array([0.4, 1.0, 0.0])   # axis along y
+    f = np.asarray(cap.faces)
+    q = hair_flow_quality(v, f, hair_coordinates(v, f, np.full(len(v), 13)))
+    along = np.abs(v[:, 1] - 1.0)
+    assert q.dtype == np.float32 and np.isfinite(q).all() and q.min() >= 0 and q.max() <= 1
+    assert q[along <= h / 2 + 0.5 * r].min() > 0.99         # the side and the caps' rims
+    assert q[along > h / 2 + 0.95 * r].max() < 0.01         # near the poles: no hair
+
+
+def test_trunk_hair_runs_down_a_part_wider_than_tall(rng):
+    # a lower torso wider than tall: its longest extent runs from side to side, but its
+    # hair must still run down the body, around a vertical axis
+    ell = trimesh.creation.icosphere(subdivisions=4)
+    a = np.array([rng.uniform(0.15, 0.2), rng.uniform(0.08, 0.11), rng.uniform(0.1, 0.13)])
+    v = np.asarray(ell.vertices) * a + np.array([0.0, 1.0, 0.0])
+    f = np.asarray(ell.faces)
+    hc = hair_coordinates(v, f, np.full(len(v), 3)).astype(np.float64)
+    e = np.stack([v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]], -1)
+    hh = np.stack([hc[:, 1] - hc[:, 0], hc[:, 2] - hc[:, 0]], -1)
+    c = v[f].mean(1)
+    front = (np.abs(c[:, 1] - 1.0) < 0.3 * a[1]) & (c[:, 2] > 0.8 * a[2])   # chest-high front
+    J = e[front] @ np.linalg.inv(hh[front])
+    ds = J[..., 0] / np.linalg.norm(J[..., 0], axis=-1, keepdims=True)
+    assert (ds[:, 1] < -0.9).all()                         # +s points down
+    assert np.abs(np.linalg.norm(J[..., 0], axis=-1) - 1).max() < 0.15   # at the tile's size

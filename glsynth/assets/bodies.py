@@ -158,9 +158,11 @@ def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size) -> d
     v = posed["vertices"][0].double().numpy() @ _TO_BODY.T
     v[:, 1] -= v[:, 1].min()
 
+    hair_coords = hairflow.hair_coordinates(v, st["faces"], st["labels"])
     paint = skin.paint_body(rest_v, st["faces"], st["uvs"], st["face_uvs"], st["scores"],
                             st["labels"], joints, look, size=texture_size,
-                            raster=_raster(texture_size))
+                            raster=_raster(texture_size),
+                            hair_quality=hairflow.hair_flow_quality(v, st["faces"], hair_coords))
     meta = {"seed": seed, "phenotype": pheno, "sex": "female" if female else "male",
             "pose": pose, "ita": ita, "fitzpatrick": fitz, "clothing": look.clothing,
             "look": look.to_dict(), "height_m": float(np.ptp(rest_v[:, 1])),
@@ -173,7 +175,7 @@ def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size) -> d
             "anatomy": st["labels"], "anatomy_map": _anatomy_map(texture_size),
             "nevi": np.asarray(paint.nevi, np.int64).reshape(-1, 4),
             "skin_params": paint.params, "skin_weight": paint.weight,
-            "hair_coords": hairflow.hair_coordinates(v, st["faces"], st["labels"]),
+            "hair_coords": hair_coords,
             "meta": meta}
 
 

@@ -152,13 +152,15 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
 
 
 def _draw_strands(canvas, rng, n, length_mm, width_um, spread_deg, curl, um, period_px):
-    """Tapered, slightly curved strands lying along +x, wrapped around the tile."""
+    """Tapered, curved strands lying along +x, wrapped around the tile; each strand's
+    coverage between 0.6 and 1 (thin and light hairs let some skin through)."""
     size = canvas.shape[0]
     for _ in range(n):
         x0, y0 = rng.uniform(0, size, 2)
         length = float(np.exp(rng.uniform(np.log(length_mm[0]), np.log(length_mm[1])))) * 1000 / um
         angle = np.radians(rng.normal(0, spread_deg))
         bend = rng.normal(0, curl)
+        value = int(rng.uniform(150, 255))
         width = rng.uniform(*width_um) / um
         k = max(4, int(length / (3 * max(width, 1))))
         t = np.linspace(0, 1, k + 1)
@@ -172,7 +174,7 @@ def _draw_strands(canvas, rng, n, length_mm, width_um, spread_deg, curl, um, per
                     p = (int(round((xs[i] + ox) * 16)), int(round((ys[i] + oy) * 16)))
                     q = (int(round((xs[i + 1] + ox) * 16)), int(round((ys[i + 1] + oy) * 16)))
                     th = max(1, int(round(width * taper[i])))
-                    cv2.line(canvas, p, q, 255, th, cv2.LINE_AA, shift=4)
+                    cv2.line(canvas, p, q, value, th, cv2.LINE_AA, shift=4)
 
 
 def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
@@ -180,9 +182,9 @@ def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
     um = period * 1e6 / size
     area_cm2 = (period * 100) ** 2
     groups = []
-    for g in range(2):   # terminal: ~8 hairs / cm2 per group, 3-12 mm long, 50-90 um thick
-        c = np.zeros((size, size), np.uint8)
-        _draw_strands(c, rng, int(8 * area_cm2), (3.0, 12.0), (50, 90), 14, 0.15, um, size)
+    for g in range(2):   # terminal: ~8 hairs / cm2 per group, 3-12 mm long, 50-90 um thick,
+        c = np.zeros((size, size), np.uint8)   # bent by up to ~50 degrees along their length
+        _draw_strands(c, rng, int(8 * area_cm2), (3.0, 12.0), (50, 90), 20, 0.45, um, size)
         groups.append(c)
     for g in range(2):   # vellus: ~40 hairs / cm2 per group, 0.6-2.5 mm, 15-30 um
         c = np.zeros((size, size), np.uint8)

@@ -1,19 +1,24 @@
 """Hair-flow coordinates: a 2D parameterisation of each body part in which body hair
 runs along +s, so that the hair tile (glsynth.assets.detail) can be laid on the skin.
 
-Each of the 16 anatomy parts is treated as a cylinder around its principal axis (the
-first principal component of its vertices), oriented away from the trunk on limbs
-(arm and leg hair points towards the hands and feet) and downwards on the head and
-trunk. A corner's coordinates are ``s`` = distance along the axis and ``t`` = arc length
+Each of the 16 anatomy parts is treated as a cylinder: limbs, hands and feet around
+their principal axis (the first principal component of their vertices), oriented away
+from the trunk (arm and leg hair points towards the hands and feet); the head, torso and
+hips around the vertical, hair pointing down. A corner's coordinates are ``s`` = distance along the axis and ``t`` = arc length
 around it (angle times the part's median radius), both in scene units, so the tile keeps
 its physical size. Every face takes the frame of its first corner's part, and a face
 across the cylinder's cut has its angles unwrapped, so coordinates are continuous inside
 each part; at part borders and along one cut per part (on the side facing the trunk, or
 the back) the hair pattern restarts, which at hair scale reads as nothing in particular.
+Where a part's surface turns across its axis (shoulder tops, the crown, fingers) the
+cylinder stretches the tile; :func:`hair_flow_quality` finds those places, and body
+painting leaves them without hair rather than draw strands several times too long.
 """
 from __future__ import annotations
 
 import numpy as np
+
+AXIAL_PARTS = (1, 2, 3, 4)   # head, upper and lower torso, hips (glsynth.dataformat)
 
 
 def _part_frames(vertices, labels):
@@ -34,7 +39,11 @@ def _part_frames(vertices, labels):
         out = c - centre_all
         out[1] = 0.0                       # horizontal direction from the trunk
         limb = np.linalg.norm(out) > 0.12 * np.ptp(v[:, 1]) or abs(axis[1]) < 0.5
-        if limb and np.linalg.norm(out) > 1e-9:
+        if int(k) in AXIAL_PARTS:
+            # head, torso and hips are wider than tall in places (the hips' longest
+            # extent runs from side to side): their hair runs down the body regardless
+            axis, limb = -up, False
+        elif limb and np.linalg.norm(out) > 1e-9:
             if axis @ (c - centre_all) < 0:   # proximal -> distal
                 axis = -axis
         elif axis @ up > 0:                   # head, trunk: downwards
@@ -72,3 +81,29 @@ def hair_coordinates(vertices, faces, labels) -> np.ndarray:
         out[sel, :, 0] = s
         out[sel, :, 1] = phi * radius
     return out
+
+
+def hair_flow_quality(vertices, faces, coords, lo=1.6, hi=2.6) -> np.ndarray:
+    """(V,) float32 in [0, 1]: how faithfully the hair-flow coordinates lay the hair tile
+    near each vertex. A part treated as a cylinder stretches the tile where its surface
+    turns across the axis (shoulder tops, the crown, the backs of hands and feet): a
+    coordinate unit there covers several times its length of skin, and hair strands
+    would be drawn that much longer. Per face, the larger singular value of dp/d(s, t)
+    (and the inverse of the smaller one) is that stretch; 1 below ``lo``, 0 above ``hi``,
+    worst face around each vertex. Body painting fades hair out where it is low."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    h = np.asarray(coords, np.float64)
+    e = np.stack([v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]], -1)      # F x 3 x 2
+    hh = np.stack([h[:, 1] - h[:, 0], h[:, 2] - h[:, 0]], -1)                 # F x 2 x 2
+    det = hh[:, 0, 0] * hh[:, 1, 1] - hh[:, 0, 1] * hh[:, 1, 0]
+    area = np.linalg.norm(np.cross(e[..., 0], e[..., 1]), axis=1)
+    ok = (np.abs(det) > 1e-14) & (area > 1e-14)
+    stretch = np.full(len(f), np.inf)
+    sv = np.linalg.svd(e[ok] @ np.linalg.inv(hh[ok]), compute_uv=False)
+    stretch[ok] = np.maximum(sv[:, 0], 1.0 / np.maximum(sv[:, 1], 1e-12))
+    stretch[area <= 1e-14] = 1.0              # degenerate faces show nothing anyway
+    worst = np.zeros(len(v))
+    np.maximum.at(worst, f.ravel(), np.repeat(stretch, 3))
+    x = np.clip((hi - worst) / (hi - lo), 0.0, 1.0)
+    return (x * x * (3 - 2 * x)).astype(np.float32)

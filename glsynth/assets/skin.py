@@ -342,25 +342,28 @@ def _vertex_normals(v, f):
 
 
 def paint_body(vertices, faces, uvs, face_uvs, scores, labels, joints, look: Look,
-               size: int = 2048, raster=None) -> Paint:
+               size: int = 2048, raster=None, hair_quality=None) -> Paint:
     """Paint the texture of a body.
 
     vertices: (V,3) rest pose in metres, +Y up, front +Z, body's left +X; faces (F,3);
     uvs/face_uvs: MakeHuman UVs; scores: (V,17) part scores (see anatomy.part_scores);
     labels: (V,) anatomy labels; joints: bone name -> rest position (same frame);
-    look: appearance; raster: optional precomputed ``uv_raster(uvs, face_uvs, size)``.
+    look: appearance; raster: optional precomputed ``uv_raster(uvs, face_uvs, size)``;
+    hair_quality: optional (V,) factor of the hair density (see
+    ``hairflow.hair_flow_quality``: no hair where the hair tile cannot be laid flat).
     """
     v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     face, bary = raster if raster is not None else uv_raster(uvs, face_uvs, size)
     vch = np.stack([np.asarray(scores)[:, list(p)].sum(1) for p in CHANNELS.values()], 1)
     tx = _Texels(size, face, bary, v, f, _vertex_normals(v, f), vch, np.asarray(labels))
-    painter = _Painter(tx, v, f, joints, look)
+    painter = _Painter(tx, v, f, joints, look, hair_quality)
     return painter.run()
 
 
 class _Painter:
-    def __init__(self, tx: _Texels, v, f, joints, look: Look):
+    def __init__(self, tx: _Texels, v, f, joints, look: Look, hair_quality=None):
         self.tx, self.v, self.f, self.j, self.look = tx, v, f, joints, look
+        self.hair_quality = hair_quality
         self.rng = np.random.default_rng(look.seed)
         self.noise = Noise3D(look.seed)
         self.scale = (v[:, 1].max() - v[:, 1].min()) / 1.75
@@ -452,6 +455,8 @@ class _Painter:
         nails = np.maximum(tx.sample(_mpfb_mask("fingernails", size)), tx.sample(_mpfb_mask("toenails", size)))
         areolae = tx.sample(_mpfb_mask("aureolae", size))
         hair = hair * (1 - np.clip(lips + nails, 0, 1))
+        if self.hair_quality is not None:   # terminal hair goes first, then vellus
+            hair = hair * tx.interp(self.hair_quality)
         params = np.stack([relief, pores, hair, oil], 1)
         params = np.clip(np.rint(np.clip(params, 0, 1) * 255), 0, 255).astype(np.uint8)
         weight = (1 - self.alpha) * (1 - 0.6 * lips) * (1 - nails) * (1 - 0.3 * areolae) * (1 - 0.5 * nevi_mask)

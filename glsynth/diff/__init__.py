@@ -149,7 +149,7 @@ def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=No
     oil = 0.5 * material.oil
     gloss = torch.zeros_like(position[..., :1]) if gloss is None else gloss
     rough = material.roughness * (1 - 0.25 * oil)
-    rough = rough + (0.12 - rough) * gloss              # moist or tense lesions (decals)
+    rough = rough + (0.2 - rough) * gloss               # moist or tense lesions (decals)
     a2 = rough ** 4
     k = 0.5 * rough ** 2
     nv = (n * v).sum(-1, keepdim=True).clamp(min=1e-4)
