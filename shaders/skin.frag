@@ -51,7 +51,7 @@ uniform float u_relief_size;       // texels per relief tile
 uniform float u_relief_amount;     // scales the relief (Material.relief)
 uniform float u_pore_mean;         // mean of the relief tile's pore channel
 uniform float u_macro_scale;       // the tile's second, coarser reading (detail.MACRO_SCALE)
-uniform float u_macro_weight;      // and its share (detail.MACRO_WEIGHT)
+uniform float u_macro_weight;      // and its share at relief level 0.5 (detail.MACRO_WEIGHT)
 #endif
 #if HAIR
 uniform sampler2D u_hair;          // hair tile: RG terminal, BA vellus coverage
@@ -139,11 +139,15 @@ void main() {
     vec4 p1 = relief_along(i1, world, lod, u1, v1);
     vec4 p2 = relief_along(i2, world, lod, u2, v2);
     // the same tile u_macro_scale times larger, offset: coarser furrows across several
-    // plateaus, and the sum of two incommensurate periods does not repeat
+    // plateaus, and the sum of two incommensurate periods does not repeat. They deepen
+    // as the square of the relief level (0.5 on most skin): the coarse criss-cross
+    // furrows of aged skin, knuckles and elbows, hardly any on a young face
+    float level = 2.0 * prm.r;
+    float macro_w = u_macro_weight * min(level * level, 2.0);
     vec3 macro_at = world / u_macro_scale + vec3(0.37, 0.61, 0.23) * u_relief_period;
     float macro_lod = lod - log2(u_macro_scale);
-    p1.rgb += u_macro_weight * relief_along(i1, macro_at, macro_lod, u1, v1).rgb;
-    p2.rgb += u_macro_weight * relief_along(i2, macro_at, macro_lod, u2, v2).rgb;
+    p1.rgb += macro_w * relief_along(i1, macro_at, macro_lod, u1, v1).rgb;
+    p2.rgb += macro_w * relief_along(i2, macro_at, macro_lod, u2, v2).rgb;
     // the height gradient of each projection in world axes, blended, then kept in the
     // tangent plane (the surface gradient)
     // lichenified skin (detail weight above 1) deepens the relief

@@ -40,7 +40,7 @@ RELIEF_SIZE = 1024        # texels (7.8 um each)
 HAIR_PERIOD = 0.016       # metres covered by one hair tile
 HAIR_SIZE = 2048          # texels (7.8 um each)
 MACRO_SCALE = 4.37        # the relief tile's second, coarser reading (incommensurate)
-MACRO_WEIGHT = 0.3        # its share of the relief
+MACRO_WEIGHT = 0.3        # its share at relief level 0.5 (the shader: times (level / 0.5)^2)
 # skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
 # only, moderate sebum (RGBA: relief, pores, hair density, oiliness)
 DEFAULT_PARAMS = (140, 80, 64, 100)

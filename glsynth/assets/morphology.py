@@ -343,9 +343,9 @@ def _eczema(b, rng, R):
     w = w * (0.7 + 0.3 * c.noise(R / 4, 2))
     b.erythema(w, rng.uniform(1.5, 3.0))
     # papulovesicles, excoriations, crust, fine scale, lichenified skin lines
-    pap = smoothstep(0.8, 1.6, c.noise(max(0.6, R / 25), 1)) * w
-    b.f["height"] += 0.25 * pap
-    b.erythema(pap, 3.0)
+    pap = smoothstep(0.5, 1.9, c.noise(max(0.4, R / 40), 1)) ** 2 * w   # domed, closely set
+    b.f["height"] += 0.2 * pap
+    b.erythema(pap, 2.0)
     b.scale(w, 0.12, 0.6, "white")
     for _ in range(int(rng.integers(2, 8))):
         centre = rng.uniform(-R, R, 2) * 0.6
@@ -417,14 +417,15 @@ def _seb_keratosis(b, rng, R):
     sd = c.shape("oval", R, aspect=rng.uniform(0.6, 0.95), irregular=0.12, warp=0.06)
     w = b.weight(sd, R * 0.05)                                          # stuck-on: sharp
     b.f["melanin_add"] += w * (0.8 + 0.2 * c.noise(R / 4, 2)) * rng.uniform(0.05, 0.3)
-    # a dull, waxy, cerebriform surface: low ridges (gyri) between narrow fissures (sulci)
-    # that hold darker keratin, keratin plugs, and a few small milia-like cysts
-    sulci = 1 - smoothstep(0.0, 0.3, np.abs(c.noise(max(0.5, R / 8), 2)))
-    b.f["height"] += w * (0.5 - 0.25 * sulci) * rng.uniform(0.5, 1.1)
-    b.f["melanin_add"] += w * sulci * rng.uniform(0.05, 0.15)
+    # a dull, papillomatous surface: rounded lobules (~1 mm) with darker keratin packed
+    # in the crevices between them, keratin plugs, and a few small milia-like cysts
+    lobes = c.noise(max(0.4, R / 12), 2)
+    crevice = 1 - smoothstep(-0.9, -0.1, lobes)
+    b.f["height"] += w * (0.3 + 0.25 * smoothstep(-0.6, 0.9, lobes)) * rng.uniform(0.6, 1.2)
+    b.f["melanin_add"] += w * crevice * rng.uniform(0.05, 0.15)
     plugs = smoothstep(1.7, 2.3, c.noise(max(0.3, R / 20), 1)) * w     # comedo-like openings
     b.f["melanin_add"] += 0.4 * plugs
-    b.f["detail"] *= 1 + 0.8 * w
+    b.f["detail"] *= 1 + 0.3 * w
     cysts = smoothstep(1.8, 2.4, c.noise(max(0.25, R / 25), 1)) * w     # milia-like cysts
     b.scale(cysts, 0.6, 0.3, "white")
     b.outline(w, 0.4)
