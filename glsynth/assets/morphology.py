@@ -234,8 +234,11 @@ class Builder:
 
     def scale(self, w, coverage, flake_mm, colour="white"):
         c = self.c
-        # flakes: patches of partly translucent keratin split by fine fissures
-        flakes = smoothstep(-0.3, 0.8, c.noise(flake_mm, 3)) * smoothstep(0.02, 0.25, np.abs(c.noise(flake_mm * 0.5, 2)))
+        # flakes: patches of partly translucent keratin split by fine fissures; heavier
+        # scale covers more of the lesion (a psoriatic plaque's is nearly continuous),
+        # light scale lies in scattered flakes
+        lo = 0.5 - 1.5 * coverage
+        flakes = smoothstep(lo, lo + 1.1, c.noise(flake_mm, 3)) * smoothstep(0.02, 0.25, np.abs(c.noise(flake_mm * 0.5, 2)))
         flakes *= 0.55 + 0.45 * smoothstep(-1, 1, c.noise(flake_mm * 0.25, 1))
         self.f["scale"] = np.maximum(self.f["scale"], np.clip(w * coverage * flakes, 0, 0.9))
         self.f["height"] += 0.12 * w * coverage * flakes
