@@ -146,6 +146,14 @@ def test_tiles_wrap_seamlessly():
     assert abs(r[..., 2].mean()) < 1e-3                    # albedo change averages to 0
 
 
+def _surface_per_hair_coordinate(v, f, hc):
+    """Per face, dp/d(s, t): the 3D edges times the inverse of the coordinate edges
+    (3 x 2, columns along s and t)."""
+    e = np.stack([v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]], -1)
+    h = np.asarray(hc, np.float64)
+    return e @ np.linalg.inv(np.stack([h[:, 1] - h[:, 0], h[:, 2] - h[:, 0]], -1))
+
+
 def test_hair_coordinates_follow_a_limb_isometrically():
     cyl = trimesh.creation.cylinder(radius=0.04, height=0.3, sections=48)
     v = np.asarray(cyl.vertices) @ np.array([[1, 0, 0], [0, 0, 1], [0, 1, 0]], float)  # axis along y
@@ -154,13 +162,10 @@ def test_hair_coordinates_follow_a_limb_isometrically():
     f = np.asarray(cyl.faces)
     hc = hair_coordinates(v, f, labels)
     side = np.abs(cyl.face_normals[:, 2]) < 0.5          # the round side, not the caps
-    e1, e2 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
     h1, h2 = hc[:, 1] - hc[:, 0], hc[:, 2] - hc[:, 0]
     ok = side & (np.abs(h1[:, 0] * h2[:, 1] - h1[:, 1] * h2[:, 0]) > 1e-12)
-    # dp/d(s, t) per face: columns of E H^-1, unit length and orthogonal on a cylinder
-    E = np.stack([e1, e2], -1)[ok]
-    H = np.stack([h1, h2], -1)[ok].astype(np.float64)
-    J = E @ np.linalg.inv(H)
+    # dp/d(s, t) per face: unit columns, orthogonal on a cylinder
+    J = _surface_per_hair_coordinate(v, f[ok], hc[ok])
     assert np.allclose(np.linalg.norm(J[..., 0], axis=-1), 1, atol=0.03)
     assert np.allclose(np.linalg.norm(J[..., 1], axis=-1), 1, atol=0.05)
     assert np.abs(np.einsum("nk,nk->n", J[..., 0], J[..., 1])).max() < 0.05
@@ -190,12 +195,10 @@ def test_trunk_hair_runs_down_a_part_wider_than_tall(rng):
     a = np.array([rng.uniform(0.15, 0.2), rng.uniform(0.08, 0.11), rng.uniform(0.1, 0.13)])
     v = np.asarray(ell.vertices) * a + np.array([0.0, 1.0, 0.0])
     f = np.asarray(ell.faces)
-    hc = hair_coordinates(v, f, np.full(len(v), 3)).astype(np.float64)
-    e = np.stack([v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]], -1)
-    hh = np.stack([hc[:, 1] - hc[:, 0], hc[:, 2] - hc[:, 0]], -1)
+    hc = hair_coordinates(v, f, np.full(len(v), 3))
     c = v[f].mean(1)
     front = (np.abs(c[:, 1] - 1.0) < 0.3 * a[1]) & (c[:, 2] > 0.8 * a[2])   # chest-high front
-    J = e[front] @ np.linalg.inv(hh[front])
+    J = _surface_per_hair_coordinate(v, f[front], hc[front])
     ds = J[..., 0] / np.linalg.norm(J[..., 0], axis=-1, keepdims=True)
     assert (ds[:, 1] < -0.9).all()                         # +s points down
     assert np.abs(np.linalg.norm(J[..., 0], axis=-1) - 1).max() < 0.15   # at the tile's size

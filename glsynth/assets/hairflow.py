@@ -4,9 +4,9 @@ runs along +s, so that the hair tile (glsynth.assets.detail) can be laid on the 
 Each of the 16 anatomy parts is treated as a cylinder: limbs, hands and feet around
 their principal axis (the first principal component of their vertices), oriented away
 from the trunk (arm and leg hair points towards the hands and feet); the head, torso and
-hips around the vertical, hair pointing down. A corner's coordinates are ``s`` = distance along the axis and ``t`` = arc length
-around it (angle times the part's median radius), both in scene units, so the tile keeps
-its physical size. Every face takes the frame of its first corner's part, and a face
+hips around the vertical, hair pointing down. A corner's coordinates are ``s`` =
+distance along the axis and ``t`` = arc length around it (angle times the part's median
+radius), both in scene units, so the tile keeps its physical size. Every face takes the frame of its first corner's part, and a face
 across the cylinder's cut has its angles unwrapped, so coordinates are continuous inside
 each part; at part borders and along one cut per part (on the side facing the trunk, or
 the back) the hair pattern restarts, which at hair scale reads as nothing in particular.
@@ -34,20 +34,21 @@ def _part_frames(vertices, labels):
         if len(p) < 3:
             continue
         c = p.mean(0)
-        _, _, vt = np.linalg.svd(p - c, full_matrices=False)
-        axis = vt[0]
         out = c - centre_all
         out[1] = 0.0                       # horizontal direction from the trunk
-        limb = np.linalg.norm(out) > 0.12 * np.ptp(v[:, 1]) or abs(axis[1]) < 0.5
         if int(k) in AXIAL_PARTS:
             # head, torso and hips are wider than tall in places (the hips' longest
             # extent runs from side to side): their hair runs down the body regardless
-            axis, limb = -up, False
-        elif limb and np.linalg.norm(out) > 1e-9:
-            if axis @ (c - centre_all) < 0:   # proximal -> distal
+            axis = -up
+        else:
+            _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+            axis = vt[0]
+            limb = np.linalg.norm(out) > 0.12 * np.ptp(v[:, 1]) or abs(axis[1]) < 0.5
+            if limb and np.linalg.norm(out) > 1e-9:
+                if axis @ (c - centre_all) < 0:   # proximal -> distal
+                    axis = -axis
+            elif axis @ up > 0:                   # a vertical part near the middle: downwards
                 axis = -axis
-        elif axis @ up > 0:                   # head, trunk: downwards
-            axis = -axis
         ref = out if np.linalg.norm(out) > 1e-9 else np.array([0.0, 0.0, 1.0])
         e1 = ref - axis * (ref @ axis)
         if np.linalg.norm(e1) < 1e-9:
