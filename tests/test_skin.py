@@ -200,5 +200,11 @@ def test_trunk_hair_runs_down_a_part_wider_than_tall(rng):
     front = (np.abs(c[:, 1] - 1.0) < 0.3 * a[1]) & (c[:, 2] > 0.8 * a[2])   # chest-high front
     J = _surface_per_hair_coordinate(v, f[front], hc[front])
     ds = J[..., 0] / np.linalg.norm(J[..., 0], axis=-1, keepdims=True)
-    assert (ds[:, 1] < -0.9).all()                         # +s points down
+    # +s points down the surface: near "down" projected into each face's plane (the
+    # front of an ellipsoid slopes, so +s is not straight down in 3D)
+    n = np.cross(v[f[front, 1]] - v[f[front, 0]], v[f[front, 2]] - v[f[front, 0]])
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    down = np.array([0.0, -1.0, 0.0]) + n[:, 1:2] * n       # minus its normal component
+    down /= np.linalg.norm(down, axis=-1, keepdims=True)
+    assert np.einsum("nk,nk->n", ds, down).min() > 0.95     # 0.972 worst over 300 seeds
     assert np.abs(np.linalg.norm(J[..., 0], axis=-1) - 1).max() < 0.15   # at the tile's size
