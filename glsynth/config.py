@@ -242,6 +242,9 @@ class ViewsConfig:
     min_lesion: float = key(0.0, "views showing a smaller share of lesion are rejected",
                             within=between(0, 1))
     ambient: list = key([0.2, 0.99], "room light: ambient intensity", pair=_LIGHT)
+    ambient_ground: list = key([0.25, 0.7], "room light: ambient reaching a surface facing the floor, "
+                               "relative to one facing the ceiling (1: even, the paper's)",
+                               pair=between(0, 1))
     diffuse: list = key([0.2, 0.99], "room light: diffuse intensity", pair=_LIGHT)
     specular: list = key([0.0, 0.1], "room light: specular intensity", pair=_LIGHT)
     material_specular: list = key([0.0, 0.05], "phong: material specular", pair=_LIGHT)
@@ -258,6 +261,8 @@ class ViewsConfig:
     flash: float = key(0.3, "probability of a phone flash at the camera in a wild or regional view",
                        within=between(0, 1))
     shadows: bool = key(True, "soft shadows from the room light (shadow map); the paper has none")
+    falloff: bool = key(True, "room light and flash fall off with the inverse square of the "
+                        "distance, as sampled at the viewed point; the paper's do not")
     flash_diffuse: list = key([0.2, 0.6], "flash: diffuse intensity", pair=_LIGHT)
     flash_specular: list = key([0.0, 0.1], "flash: specular intensity", pair=_LIGHT)
     ambient_tint: float = key(0.5, "tint the ambient light by the background's mean colour (0: none)",

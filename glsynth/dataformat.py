@@ -142,7 +142,7 @@ def lights_from_record(record: dict) -> list:
     """The PointLights of a record: ``lights`` (room light first), else ``light``."""
     from .lighting import PointLight
     dicts = record.get("lights") or [record["light"]]
-    keys = ("position", "ambient", "diffuse", "specular")
+    keys = ("position", "ambient", "diffuse", "specular", "falloff_distance", "ambient_ground")
     return [PointLight(**{k: d[k] for k in keys if k in d}) for d in dicts]
 
 

@@ -17,12 +17,24 @@ def _rgb(value, what):
 class PointLight:
     """A point light: position (scene units) and RGB ambient/diffuse/specular colours
     (a scalar means grey). The paper's blending light: ambient 0.5, diffuse 0.5,
-    specular 0.025 at the camera."""
+    specular 0.025 at the camera.
+
+    ``falloff_distance`` 0 (the paper's) lights every point alike whatever its distance;
+    above 0 the direct terms (not ambient) are as given at that distance and fall off
+    with the inverse square of the distance (``falloff_gain``), so a flash lights a
+    limb's near side more than the sides turning away from it.
+
+    ``ambient_ground`` 1 (the paper's) is ambient light alike from every direction;
+    below 1 it is a room's: a surface facing down (-Y, the floor) gets that share of
+    what one facing up (+Y, the ceiling) gets, in between by its normal, keeping
+    ``ambient`` as the mean over all directions (``ambient_gain``)."""
 
     position: tuple
     ambient: tuple = (0.5, 0.5, 0.5)
     diffuse: tuple = (0.5, 0.5, 0.5)
     specular: tuple = (0.025, 0.025, 0.025)
+    falloff_distance: float = 0.0
+    ambient_ground: float = 1.0
 
     def __post_init__(self):
         p = np.asarray(self.position, dtype=np.float64).reshape(3)
@@ -31,10 +43,47 @@ class PointLight:
         object.__setattr__(self, "position", tuple(p.tolist()))
         for name in ("ambient", "diffuse", "specular"):
             object.__setattr__(self, name, _rgb(getattr(self, name), f"light {name}"))
+        d = float(self.falloff_distance)
+        if not (np.isfinite(d) and d >= 0):
+            raise ValueError(f"light falloff_distance must be finite and >= 0, got {self.falloff_distance}")
+        object.__setattr__(self, "falloff_distance", d)
+        g = float(self.ambient_ground)
+        if not (np.isfinite(g) and 0 <= g <= 1):
+            raise ValueError(f"light ambient_ground must be in [0, 1], got {self.ambient_ground}")
+        object.__setattr__(self, "ambient_ground", g)
 
     def to_dict(self):
-        return {"position": list(self.position), "ambient": list(self.ambient),
-                "diffuse": list(self.diffuse), "specular": list(self.specular)}
+        out = {"position": list(self.position), "ambient": list(self.ambient),
+               "diffuse": list(self.diffuse), "specular": list(self.specular)}
+        if self.falloff_distance > 0:
+            out["falloff_distance"] = self.falloff_distance
+        if self.ambient_ground < 1:
+            out["ambient_ground"] = self.ambient_ground
+        return out
+
+
+# Inverse-square gain of a light, capped where a surface comes within a quarter of the
+# falloff distance (a point almost at the lamp would otherwise reach infinity); the
+# shaders use the same cap.
+FALLOFF_NEAREST = 0.25
+
+
+def ambient_gain(up, ground):
+    """The ambient share of a surface whose normal has ``up`` (its +Y component, -1..1)
+    under a light with ``ambient_ground`` ``ground``: from 2 g / (1 + g) facing down to
+    2 / (1 + g) facing up, mean 1 over all directions; 1 when ground is 1."""
+    if ground >= 1:
+        return 1.0
+    return (ground + (1 - ground) * (0.5 + 0.5 * up)) * (2 / (1 + ground))
+
+
+def falloff_gain(distance, falloff_distance):
+    """(falloff_distance / distance)^2, the distance clipped below at FALLOFF_NEAREST
+    times falloff_distance; 1 when falloff_distance is 0. ``distance``: a numpy array
+    or torch tensor."""
+    if falloff_distance <= 0:
+        return 1.0
+    return (falloff_distance / distance.clip(min=FALLOFF_NEAREST * falloff_distance)) ** 2
 
 
 MODELS = ("phong", "skin")

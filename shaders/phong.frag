@@ -29,10 +29,13 @@ uniform vec3 u_light_pos[NUM_LIGHTS];
 uniform vec3 u_light_ambient[NUM_LIGHTS];
 uniform vec3 u_light_diffuse[NUM_LIGHTS];
 uniform vec3 u_light_specular[NUM_LIGHTS];
+uniform float u_light_falloff[NUM_LIGHTS];   // PointLight.falloff_distance (0: none)
+uniform float u_light_ground[NUM_LIGHTS];    // PointLight.ambient_ground (1: even)
 uniform vec3 u_mat_specular;
 uniform float u_shininess;
 uniform float u_wrap;   // Material.wrap (0: Lambert)
 #include "surface.glsl"
+#include "light.glsl"
 
 out vec4 out_color;
 
@@ -70,9 +73,10 @@ void main() {
 #if SHADOWS
         float vis = i == 0 ? main_light_visibility(b) : 1.0;
 #else
-        const float vis = 1.0;
+        float vis = 1.0;
 #endif
-        light_sum += u_light_ambient[i]
+        vis *= falloff_gain(length(to_light), u_light_falloff[i]);
+        light_sum += u_light_ambient[i] * ambient_gain(n.y, u_light_ground[i])
                    + vis * u_light_diffuse[i] * max((cos_nl + u_wrap) / (1.0 + u_wrap), 0.0);
         if (cos_nl > 0.0) {
             vec3 r = 2.0 * cos_nl * n - l;

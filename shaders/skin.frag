@@ -39,6 +39,8 @@ uniform vec3 u_eye;
 uniform vec3 u_light_pos[NUM_LIGHTS];
 uniform vec3 u_light_ambient[NUM_LIGHTS];
 uniform vec3 u_light_diffuse[NUM_LIGHTS];
+uniform float u_light_falloff[NUM_LIGHTS];   // PointLight.falloff_distance (0: none)
+uniform float u_light_ground[NUM_LIGHTS];    // PointLight.ambient_ground (1: even)
 uniform float u_roughness;         // GGX roughness of dry skin (alpha = roughness^2)
 uniform float u_oil;               // 0..1, scales the oiliness map
 uniform float u_wrap;              // Material.wrap
@@ -62,6 +64,7 @@ uniform float u_unit;              // scene units per metre
 flat in mat3x2 g_hair;             // hair-flow coordinates (scene units) of the corners
 #endif
 #include "surface.glsl"
+#include "light.glsl"
 
 out vec4 out_color;
 
@@ -213,14 +216,17 @@ void main() {
 #if SHADOWS
         float vis = i == 0 ? main_light_visibility(b) : 1.0;
 #else
-        const float vis = 1.0;
+        float vis = 1.0;
 #endif
+        vis *= falloff_gain(length(to_light), u_light_falloff[i]);
         float nl_detail = dot(n, l);
         float nl_geo = dot(ng, l);
         vec3 nl = mix(vec3(nl_detail), vec3(nl_geo), vec3(0.6, 0.3, 0.15));
         vec3 diffuse = max((nl + wrap) / (1.0 + wrap), 0.0);
         float shade = i == 0 ? 1.0 - 0.6 * clamp(hair_shadow, 0.0, 1.0) : 1.0;
-        light_sum += u_light_ambient[i] + vis * shade * u_light_diffuse[i] * diffuse;
+        // (the surface's own normal: skin and hair alike, relief does not shade it)
+        vec3 ambient = u_light_ambient[i] * ambient_gain(ng.y, u_light_ground[i]);
+        light_sum += ambient + vis * shade * u_light_diffuse[i] * diffuse;
         if (nl_detail > 0.0) {
             vec3 h = (l + v) / max(length(l + v), 1e-20);
             float nh = max(dot(n, h), 0.0);
@@ -238,7 +244,7 @@ void main() {
         float tl = dot(fibre, l);
         vec3 hh = (l + v) / max(length(l + v), 1e-20);
         float th = dot(fibre, hh);
-        hair_light += u_light_ambient[i] + vis * u_light_diffuse[i] * (0.3 + 0.7 * sqrt(max(1.0 - tl * tl, 0.0)));
+        hair_light += ambient + vis * u_light_diffuse[i] * (0.3 + 0.7 * sqrt(max(1.0 - tl * tl, 0.0)));
         float s2 = max(1.0 - th * th, 0.0), s4 = s2 * s2, s16 = s4 * s4 * s4 * s4;
         hair_spec += vis * u_light_diffuse[i] * 0.12 * (s16 * s4);   // sine^40
 #endif

@@ -22,9 +22,14 @@ def _skin_material(rng, **kw):
 @pytest.mark.parametrize("trial", range(4))
 def test_torch_skin_reflectance_matches_gl(renderer, rng, trial):
     mesh, tex, cam = textured_view(renderer, rng, sphere if trial % 2 == 0 else box, max_texture=200)
-    lights = [PointLight(np.asarray(cam.eye) + rng.normal(scale=0.3, size=3), ambient=rng.uniform(0, 0.6),
-                         diffuse=rng.uniform(0.2, 1.5)) for _ in range(int(rng.integers(1, 3)))]
-    lights.append(PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(0.2, 0.6)))  # a flash
+    lights = []
+    for _ in range(int(rng.integers(1, 3))):
+        p = np.asarray(cam.eye) + rng.normal(scale=0.3, size=3)
+        lights.append(PointLight(p, ambient=rng.uniform(0, 0.6), diffuse=rng.uniform(0.2, 1.5),
+                                 falloff_distance=rng.choice([0.0, np.linalg.norm(p) * rng.uniform(0.3, 1.5)]),
+                                 ambient_ground=rng.choice([1.0, rng.uniform(0, 1)])))
+    lights.append(PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(0.2, 0.6),  # a flash
+                             falloff_distance=np.linalg.norm(cam.eye) * rng.uniform(0.5, 1.2)))
     mat = _skin_material(rng, detail=False)
     out = renderer.render(mesh, cam, passes=("gbuffer", "rgb"), lights=lights, material=mat)
     img = diff.shade(out, mesh, torch.tensor(tex / 255.0, dtype=torch.float32), cam, lights, mat)

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..lighting import Material, PointLight, check_lights
+from ..lighting import Material, PointLight, ambient_gain, check_lights, falloff_gain
 
 __all__ = ["interpolate", "texture", "phong", "phong_terms", "skin_terms", "shade", "surface",
            "GBuffer", "srgb_to_linear", "linear_to_srgb"]
@@ -104,15 +104,18 @@ def phong_terms(position, normal, eye, lights, material):
     wrap = float(getattr(material, "wrap", 0.0))
     for light in lights:
         lp = torch.tensor(light.position, dtype=dt, device=dev)
-        l = F.normalize(lp - position, dim=-1, eps=1e-20)
+        to_light = lp - position
+        l = F.normalize(to_light, dim=-1, eps=1e-20)
+        gain = falloff_gain(to_light.norm(dim=-1, keepdim=True), light.falloff_distance)
         cos_nl = (n * l).sum(-1, keepdim=True)
         # wrap lighting (Material.wrap, 0 = Lambert): max((n.l + wrap) / (1 + wrap), 0)
         diffuse = ((cos_nl + wrap) / (1 + wrap)).clamp(min=0) if wrap else cos_nl.clamp(min=0)
         light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) \
-            + torch.tensor(light.diffuse, dtype=dt, device=dev) * diffuse
+            * ambient_gain(n[..., 1:2], light.ambient_ground) \
+            + torch.tensor(light.diffuse, dtype=dt, device=dev) * gain * diffuse
         r = 2 * cos_nl * n - l
         rv = (r * view_dir).sum(-1, keepdim=True).clamp(min=0)
-        spec = torch.tensor(light.specular, dtype=dt, device=dev) * ks * rv.pow(material.shininess)
+        spec = torch.tensor(light.specular, dtype=dt, device=dev) * gain * ks * rv.pow(material.shininess)
         spec_sum = spec_sum + torch.where(cos_nl > 0, spec, torch.zeros_like(spec))
     return light_sum, spec_sum
 
@@ -158,15 +161,19 @@ def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=No
     spec_sum = torch.zeros_like(position)
     for light in lights:
         lp = torch.tensor(light.position, dtype=dt, device=dev)
-        l = F.normalize(lp - position, dim=-1, eps=1e-20)
+        to_light = lp - position
+        l = F.normalize(to_light, dim=-1, eps=1e-20)
         nl = (n * l).sum(-1, keepdim=True)
         nl_rgb = nl
         if geometric is not None:
             ng = F.normalize(geometric, dim=-1, eps=1e-30)
             nl_rgb = nl + ((ng * l).sum(-1, keepdim=True) - nl) * torch.tensor(SOFT_RGB, dtype=dt, device=dev)
         diffuse = ((nl_rgb + wrap) / (1 + wrap)).clamp(min=0)
-        e = torch.tensor(light.diffuse, dtype=dt, device=dev)
-        light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) + e * diffuse
+        e = torch.tensor(light.diffuse, dtype=dt, device=dev) \
+            * falloff_gain(to_light.norm(dim=-1, keepdim=True), light.falloff_distance)
+        up = (n if geometric is None else F.normalize(geometric, dim=-1, eps=1e-30))[..., 1:2]
+        light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) \
+            * ambient_gain(up, light.ambient_ground) + e * diffuse
         h = F.normalize(l + v, dim=-1, eps=1e-20)
         nh = (n * h).sum(-1, keepdim=True).clamp(min=0)
         d = nh * nh * (a2 - 1) + 1

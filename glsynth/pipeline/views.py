@@ -200,8 +200,12 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
     ambient = rng.uniform(*v.ambient)
     if ambient_tint is not None:
         ambient = ambient * np.asarray(ambient_tint, np.float64)
+    # with fall-off the sampled intensities are those at the viewed point
+    at_point = lambda p: float(np.linalg.norm(p - point)) if v.falloff else 0.0  # noqa: E731
+    ground = float(rng.uniform(*v.ambient_ground)) if v.ambient_ground[0] < 1 else 1.0
     light = PointLight(light_pos, ambient=ambient, diffuse=rng.uniform(*v.diffuse),
-                       specular=rng.uniform(*v.specular))
+                       specular=rng.uniform(*v.specular), falloff_distance=at_point(light_pos),
+                       ambient_ground=ground)
     mat_spec, shininess = rng.uniform(*v.material_specular), rng.uniform(*v.shininess)
     wrap = float(rng.uniform(*v.wrap)) if v.wrap[1] > 0 else 0.0
     skin = {}
@@ -215,7 +219,7 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
     if p_flash > 0 and rng.random() < p_flash:
         # a phone flash sits next to the lens: no ambient, the camera sees what it lights
         flash = PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(*v.flash_diffuse),
-                           specular=rng.uniform(*v.flash_specular))
+                           specular=rng.uniform(*v.flash_specular), falloff_distance=at_point(eye))
     return ViewScene(cam, light, material, centre, flash, point=np.asarray(point, np.float64),
                      framing=framing)
 

@@ -57,6 +57,7 @@ class Viewer:
                        else overview_camera(scene.mesh, *self.size))
         self.home = self.camera
         room = lights[0] if lights else PointLight(self.camera.eye, **LIGHT_TERMS)
+        self.room = room              # its fall-off and ambient_ground stay as recorded
         self.light_position = np.asarray(room.position, float)
         self.light_terms = {k: getattr(room, k) for k in LIGHT_TERMS}
         self.flash = lights[1] if lights and len(lights) > 1 else None
@@ -74,7 +75,7 @@ class Viewer:
     @property
     def light(self) -> PointLight:
         """The room light."""
-        return PointLight(self.light_position, **self.light_terms)
+        return dataclasses.replace(self.room, position=tuple(self.light_position), **self.light_terms)
 
     @property
     def lights(self) -> list:

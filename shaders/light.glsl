@@ -1,0 +1,13 @@
+// Inverse-square fall-off of a point light (glsynth.lighting.falloff_gain): 1 with no
+// falloff distance, else (d0 / d)^2 with d clipped below at a quarter of d0.
+float falloff_gain(float dist, float d0) {
+    if (d0 <= 0.0) return 1.0;
+    float r = d0 / max(dist, 0.25 * d0);
+    return r * r;
+}
+
+// Ambient share of a surface facing `up` (+Y component of its normal) under a room
+// light whose floor gives `ground` of the ceiling's (glsynth.lighting.ambient_gain).
+float ambient_gain(float up, float ground) {
+    return (ground + (1.0 - ground) * (0.5 + 0.5 * up)) * (2.0 / (1.0 + ground));
+}
