@@ -294,6 +294,36 @@ def test_melanoma_subtypes(rng):
     assert np.mean([a for _, a in kinds["lentigo maligna"]]) < np.mean([a for _, a in kinds["superficial/nodular"]])
 
 
+def test_morphea_is_a_blanched_smooth_plaque(rng):
+    """Morphea's core has lost blood and skin markings (ivory, bound-down skin)."""
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=4):
+        f = make_condition("morphea", [int(seed)], size=128)
+        core = ndimage.binary_erosion(f.mask, iterations=12)
+        assert core.sum() > 50
+        assert np.median(f.f["blood"][core]) < 0.6 and np.median(f.f["detail"][core]) < 0.5
+        assert np.median(f.f["blood"][~f.mask]) > 0.95
+
+
+def test_porokeratosis_rings_have_a_darker_keratotic_rim(rng):
+    """Many small annular lesions, each rimmed by a thin raised, scaly, darker ridge."""
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=3):
+        f = make_condition("porokeratosis", [int(seed)], size=512)
+        ids = [k for k in range(1, int(f.instances.max()) + 1) if (f.instances == k).sum() > 200]
+        assert len(ids) >= 5
+        rimmed = 0
+        for k in ids:
+            m = f.instances == k
+            rim = ndimage.binary_dilation(m, iterations=2) & ~ndimage.binary_erosion(m, iterations=2)
+            inner = ndimage.binary_erosion(m, iterations=6)
+            if inner.sum() < 10:
+                continue
+            rimmed += np.percentile(f.f["melanin"][rim], 75) > np.median(f.f["melanin"][inner]) + 0.2 \
+                and f.f["scale"][rim].max() > 0.3 and f.f["height"][rim].mean() > f.f["height"][inner].mean()
+        assert rimmed >= 0.8 * len(ids), (rimmed, len(ids))
+
+
 def test_erythema_darkens_more_than_it_reddens_on_dark_skin():
     """The same inflammation: pink on light skin, a darker, less red change on dark skin."""
     from glsynth.assets.lesions import reference_skin

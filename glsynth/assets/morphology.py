@@ -557,6 +557,51 @@ def _purpura(b, rng, R):
     return {"age": round(float(age), 2)}
 
 
+def _morphea(b, rng, R):
+    """Localized scleroderma: an oval indurated plaque, ivory and shiny where collagen
+    has replaced the dermis (little blood, skin markings lost), pale or darker on
+    pigmented skin, often inside a lilac (poorly oxygenated) inflammatory ring."""
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.45, 0.9), irregular=0.2, warp=0.15)
+    w = b.weight(sd, R * 0.12, "ill-defined")
+    core = smoothstep(0.0, R * 0.35, sd)
+    b.erythema(core, -rng.uniform(0.5, 0.75))                            # blanched
+    b.f["bilirubin"] += 0.06 * core                                      # ivory, faintly yellow
+    b.mix("melanin", core, rng.uniform(0.55, 0.85) if rng.random() < 0.7 else rng.uniform(1.3, 1.8))
+    b.f["detail"] *= 1 - 0.75 * core                                     # bound-down, smooth
+    b.f["gloss"] = np.maximum(b.f["gloss"], 0.2 * core)
+    b.f["height"] += rng.uniform(-0.1, 0.15) * core
+    if rng.random() < 0.7:                                               # active lilac border
+        ring = smoothstep(R * 0.45, 0.0, np.abs(sd - R * 0.05)) ** 2 * w
+        b.erythema(ring, rng.uniform(0.8, 1.8), oxygen=0.5)
+    b.outline(w, 0.4)
+    return {}
+
+
+def _porokeratosis(b, rng, R):
+    """Disseminated superficial actinic porokeratosis: many small rings, each a thin
+    raised keratotic ridge (the cornoid lamella, brownish) round a slightly atrophic,
+    pale or pink-brown centre, on sun-damaged skin."""
+    c = b.c
+    for p in arrange(c, "widespread", int(rng.integers(10, 35)), R, R * 0.08):
+        r = rng.uniform(1.5, 5.0)
+        sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.7, 1.0), irregular=0.15, warp=0.1)
+        disc = b.weight(sd, r * 0.1)
+        ridge = smoothstep(max(0.35, 1.5 * c.px), 0.0, np.abs(sd))       # a ~0.4 mm thread
+        inner = smoothstep(0.0, r * 0.3, sd)
+        b.f["detail"] *= 1 - 0.5 * inner
+        if rng.random() < 0.5:
+            b.f["melanin"] *= 1 + 0.25 * inner                           # pink-brown centre
+            b.erythema(inner, 0.8)
+        else:
+            b.mix("melanin", inner, 0.7)                                 # pale centre
+        b.f["melanin"] *= 1 + 1.6 * ridge
+        b.f["height"] += 0.15 * ridge
+        b.f["scale"] = np.maximum(b.f["scale"], 0.55 * ridge)
+        b.outline(disc, 0.4)
+    return {"scale_rgb": (150, 118, 90), "arrangement": "widespread"}
+
+
 # preset -> (builder, size range in mm (the condition's extent), where it usually is)
 PRESETS = {
     "nevus": (_nevus, (2.5, 9.0)),
@@ -575,6 +620,8 @@ PRESETS = {
     "lupus": (_lupus, (10.0, 60.0)),
     "pyogenic_granuloma": (_pyogenic_granuloma, (4.0, 18.0)),
     "purpura": (_purpura, (10.0, 90.0)),
+    "morphea": (_morphea, (20.0, 120.0)),
+    "porokeratosis": (_porokeratosis, (30.0, 120.0)),
 }
 
 
