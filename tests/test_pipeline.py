@@ -16,6 +16,7 @@ import glsynth as gs
 from glsynth.config import ConfigError, load_config
 from glsynth.io.images import read_image, read_rgb
 from runs import SMALL, assert_same_folders, dataset_bytes, small_config
+from shapes import plane
 
 
 def image_lesion_folder(root, n=3, seed=0):
@@ -282,6 +283,37 @@ def test_stages_release_the_renderer_they_make(tmp_path, renderer_spy):
                            renderer=mine).synthesize_views(progress=False)
         assert mine not in closed
     assert closed[-1] is mine
+
+
+@pytest.mark.parametrize("radius_mm", [0.2, 1.5, 12.0])
+def test_closeups_frame_a_lesion_at_the_requested_fraction(renderer, rng, radius_mm):
+    """A disc lesion on a plane, seen square-on: its share of the rendered frame is the
+    requested one; a lesion too small for the nearest distance narrows the field of
+    view (down to closeup_min_fov_deg, below which it fills less)."""
+    from glsynth.pipeline import views as V
+    frac = rng.uniform(0.05, 0.2)
+    v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0").views
+    r = radius_mm / 1000
+    centre = np.r_[rng.uniform(-0.1, 0.1, 2), 0.0]
+    a, d = rng.uniform(0, 2 * np.pi, 4000), r * np.sqrt(rng.uniform(0, 1, 4000))
+    pts = centre + np.c_[d * np.cos(a), d * np.sin(a), np.zeros_like(a)]
+    site = V.LesionSite(pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)), np.pi * r * r)
+    point, normal, direction, w, _, fov = V._closeup_camera([site], rng, v)
+    cam = gs.Camera.from_surface(point, direction, w, fov_deg=fov, width=renderer.width, height=renderer.height)
+    out = renderer.render(plane(rng, size=1.0), cam, passes=("gbuffer",))
+    mesh = plane(rng, size=1.0)
+    p = np.einsum("hwk,hwkc->hwc", out["bary"], mesh.vertices[mesh.faces[np.maximum(out["face_id"], 0)]])
+    assert (out["face_id"] >= 0).all()
+    # the lesion's share of a square frame (views are square; this renderer may not be)
+    got = (np.linalg.norm(p - centre, axis=-1) < r).mean() * renderer.width / renderer.height
+    side = 2 * w * np.tan(np.radians(fov) / 2)                  # frame height on the plane
+    assert abs(got - np.pi * r * r / side ** 2) < 0.1 * frac
+    if radius_mm == 12.0:
+        assert fov == v.fov_deg and abs(got - frac) < 0.1 * frac
+    elif radius_mm == 1.5:
+        assert w == v.closeup_w[0] and v.closeup_min_fov_deg < fov < v.fov_deg and abs(got - frac) < 0.1 * frac
+    else:
+        assert w == v.closeup_w[0] and fov == v.closeup_min_fov_deg and got < 0.5 * frac
 
 
 @pytest.mark.slow

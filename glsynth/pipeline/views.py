@@ -111,19 +111,26 @@ def _wild_camera(mesh, lesion_sites, rng, v):
 def _closeup_camera(lesion_sites, rng, v):
     """A clinical close-up: a lesion filling a fraction of the frame (log-uniform in
     views.closeup_fraction, as area), seen within views.closeup_tilt of its normal,
-    its centre off the image centre by up to a fifth of the frame."""
+    its centre off the image centre by up to a fifth of the frame. A lesion too small
+    to fill its share from the nearest distance (views.closeup_w) is framed as a
+    phone's telephoto lens or a crop does: a narrower field of view, down to
+    views.closeup_min_fov_deg. Returns (point, normal, direction, w, centre, fov_deg)."""
     k = int(rng.integers(len(lesion_sites)))
     site = lesion_sites[k]
     lo, hi = v.closeup_fraction
     frac = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
-    half_tan = np.tan(np.radians(v.fov_deg) / 2)
     width = np.sqrt(site.area / frac)                       # frame width on the surface
-    w = float(np.clip(width / (2 * half_tan), *v.closeup_w))
+    w_wanted = width / (2 * np.tan(np.radians(v.fov_deg) / 2))
+    w = float(np.clip(w_wanted, *v.closeup_w))
+    fov = v.fov_deg
+    if w_wanted < v.closeup_w[0]:
+        fov = float(np.clip(np.degrees(2 * np.arctan(width / (2 * w))), v.closeup_min_fov_deg, v.fov_deg))
+    half_tan = np.tan(np.radians(fov) / 2)
     centroid = site.points.mean(0)
     aim = centroid + rng.uniform(-0.2, 0.2, 3) * 2 * w * half_tan
     i = int(np.argmin(np.sum((site.points - aim) ** 2, axis=1)))
     point, normal = site.points[i], site.normals[i]
-    return point, normal, _tilted(normal, rng, v.closeup_tilt), w, f"lesion {k + 1}"
+    return point, normal, _tilted(normal, rng, v.closeup_tilt), w, f"lesion {k + 1}", fov
 
 
 def _regional_camera(body, rng, v):
@@ -168,10 +175,11 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
     if chosen is None:
         framing = "wild"
         chosen = _wild_camera(mesh, lesion_sites, rng, v)
-    point, normal, direction, w, centre = chosen
+    point, normal, direction, w, centre, *fov = chosen        # close-ups may zoom in
     if np.linalg.norm(normal) < 1e-9 or np.linalg.norm(direction) < 1e-9:
         raise ViewRejected(Rejection.ZERO_NORMAL)
-    cam = Camera.from_surface(point, direction, w, fov_deg=v.fov_deg, width=v.size, height=v.size)
+    cam = Camera.from_surface(point, direction, w, fov_deg=fov[0] if fov else v.fov_deg,
+                              width=v.size, height=v.size)
     if direction is not normal:  # tilted: keep the surface's own normal in the record
         cam = Camera(cam.eye, cam.target, cam.up, cam.fov_deg, cam.width, cam.height, None, None,
                      {**cam.surface, "normal": (np.asarray(normal) / np.linalg.norm(normal)).tolist(),
