@@ -140,9 +140,10 @@ def camera_from_record(record: dict):
 
 def lights_from_record(record: dict) -> list:
     """The PointLights of a record: ``lights`` (room light first), else ``light``."""
+    import dataclasses
     from .lighting import PointLight
     dicts = record.get("lights") or [record["light"]]
-    keys = ("position", "ambient", "diffuse", "specular", "falloff_distance", "ambient_ground")
+    keys = [f.name for f in dataclasses.fields(PointLight)]
     return [PointLight(**{k: d[k] for k in keys if k in d}) for d in dicts]
 
 

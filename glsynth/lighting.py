@@ -64,7 +64,7 @@ class PointLight:
 
 # Inverse-square gain of a light, capped where a surface comes within a quarter of the
 # falloff distance (a point almost at the lamp would otherwise reach infinity); the
-# shaders use the same cap.
+# renderer passes it to the shaders (shaders/light.glsl).
 FALLOFF_NEAREST = 0.25
 
 

@@ -1,8 +1,9 @@
 // Inverse-square fall-off of a point light (glsynth.lighting.falloff_gain): 1 with no
-// falloff distance, else (d0 / d)^2 with d clipped below at a quarter of d0.
+// falloff distance, else (d0 / d)^2 with d clipped below at FALLOFF_NEAREST times d0
+// (defined by the renderer from glsynth.lighting.FALLOFF_NEAREST).
 float falloff_gain(float dist, float d0) {
     if (d0 <= 0.0) return 1.0;
-    float r = d0 / max(dist, 0.25 * d0);
+    float r = d0 / max(dist, FALLOFF_NEAREST * d0);
     return r * r;
 }
 

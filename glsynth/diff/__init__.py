@@ -159,6 +159,7 @@ def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=No
     wrap = material.wrap * torch.tensor(WRAP_RGB, dtype=dt, device=dev)
     light_sum = torch.zeros_like(position)
     spec_sum = torch.zeros_like(position)
+    ng = n if geometric is None else F.normalize(geometric, dim=-1, eps=1e-30)
     for light in lights:
         lp = torch.tensor(light.position, dtype=dt, device=dev)
         to_light = lp - position
@@ -166,14 +167,12 @@ def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=No
         nl = (n * l).sum(-1, keepdim=True)
         nl_rgb = nl
         if geometric is not None:
-            ng = F.normalize(geometric, dim=-1, eps=1e-30)
             nl_rgb = nl + ((ng * l).sum(-1, keepdim=True) - nl) * torch.tensor(SOFT_RGB, dtype=dt, device=dev)
         diffuse = ((nl_rgb + wrap) / (1 + wrap)).clamp(min=0)
         e = torch.tensor(light.diffuse, dtype=dt, device=dev) \
             * falloff_gain(to_light.norm(dim=-1, keepdim=True), light.falloff_distance)
-        up = (n if geometric is None else F.normalize(geometric, dim=-1, eps=1e-30))[..., 1:2]
         light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) \
-            * ambient_gain(up, light.ambient_ground) + e * diffuse
+            * ambient_gain(ng[..., 1:2], light.ambient_ground) + e * diffuse
         h = F.normalize(l + v, dim=-1, eps=1e-20)
         nh = (n * h).sum(-1, keepdim=True).clamp(min=0)
         d = nh * nh * (a2 - 1) + 1

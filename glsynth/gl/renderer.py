@@ -19,7 +19,7 @@ import numpy as np
 from ..assets.detail import MACRO_SCALE, MACRO_WEIGHT
 from ..camera import Camera
 from ..errors import InputError
-from ..lighting import Material, PointLight, check_lights
+from ..lighting import FALLOFF_NEAREST, Material, PointLight, check_lights
 from ..mesh import Mesh
 from ..resources import shader_source, with_defines
 from .context import UnlockedGL, create_context, default_backend
@@ -381,7 +381,7 @@ class Renderer:
         name = PhongProgram(n_lights, shadows, decals)
         if name not in self.programs:
             frag = with_defines(shader_source("phong.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows,
-                                DECALS=decals)
+                                DECALS=decals, FALLOFF_NEAREST=float(FALLOFF_NEAREST))
             vert = with_defines(shader_source("mesh.vert"), SHADOWS=shadows)
             prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
             _set_units(prog, {"u_shadow_map": 1, **DECAL_UNITS})
@@ -394,7 +394,8 @@ class Renderer:
         key = ("skin", n_lights, shadows, detail, hair, decals)
         if key not in self.programs:
             frag = with_defines(shader_source("skin.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows,
-                                DETAIL=detail, HAIR=hair, DECALS=decals)
+                                DETAIL=detail, HAIR=hair, DECALS=decals,
+                                FALLOFF_NEAREST=float(FALLOFF_NEAREST))
             vert = shader_source("mesh.vert")
             vert = with_defines(vert, SHADOWS=shadows, **({"HAIR_COORDS": 1} if hair else {}))
             prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)

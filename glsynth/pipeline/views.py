@@ -105,7 +105,7 @@ def _wild_camera(mesh, lesion_sites, rng, v):
         point = bary @ mesh.vertices[mesh.faces[f]]
         normal = bary @ mesh.vertex_normals[mesh.faces[f]]
         centre = "surface"
-    return point, normal, normal, rng.uniform(*v.w), centre
+    return point, normal, normal, rng.uniform(*v.w), centre, v.fov_deg
 
 
 def _closeup_camera(lesion_sites, rng, v):
@@ -151,7 +151,7 @@ def _regional_camera(body, rng, v):
     fill = rng.uniform(*v.regional_fill)
     w = extent / fill / (2 * np.tan(np.radians(v.fov_deg) / 2))
     normal = mesh.vertex_normals[i]
-    return mesh.vertices[i], normal, normal, float(w), f"part {int(k)}"
+    return mesh.vertices[i], normal, normal, float(w), f"part {int(k)}", v.fov_deg
 
 
 def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=None) -> ViewScene:
@@ -175,11 +175,10 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
     if chosen is None:
         framing = "wild"
         chosen = _wild_camera(mesh, lesion_sites, rng, v)
-    point, normal, direction, w, centre, *fov = chosen        # close-ups may zoom in
+    point, normal, direction, w, centre, fov = chosen         # close-ups may zoom in
     if np.linalg.norm(normal) < 1e-9 or np.linalg.norm(direction) < 1e-9:
         raise ViewRejected(Rejection.ZERO_NORMAL)
-    cam = Camera.from_surface(point, direction, w, fov_deg=fov[0] if fov else v.fov_deg,
-                              width=v.size, height=v.size)
+    cam = Camera.from_surface(point, direction, w, fov_deg=fov, width=v.size, height=v.size)
     if direction is not normal:  # tilted: keep the surface's own normal in the record
         cam = Camera(cam.eye, cam.target, cam.up, cam.fov_deg, cam.width, cam.height, None, None,
                      {**cam.surface, "normal": (np.asarray(normal) / np.linalg.norm(normal)).tolist(),
