@@ -40,7 +40,7 @@ RELIEF_SIZE = 1024        # texels (7.8 um each)
 HAIR_PERIOD = 0.016       # metres covered by one hair tile
 HAIR_SIZE = 2048          # texels (7.8 um each)
 MACRO_SCALE = 4.37        # the relief tile's second, coarser reading (incommensurate)
-MACRO_WEIGHT = 0.3        # its share at relief level 0.5 (the shader: times (level / 0.5)^2)
+MACRO_WEIGHT = 0.2        # its share at relief level 0.5 (the shader: times (level / 0.5)^2)
 # skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
 # only, moderate sebum (RGBA: relief, pores, hair density, oiliness)
 DEFAULT_PARAMS = (140, 80, 64, 100)
@@ -109,10 +109,12 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     rng = np.random.default_rng([seed, 1])
     um = period * 1e6 / size                                        # micrometres per texel
     # primary furrows: the walls between irregular polygonal plateaus ~0.45 mm across,
-    # ~30 um deep (varying in patches) with a ~20 um V, and plateaus domed by 10 um
+    # ~30 um deep with a ~25 um V, and plateaus domed by 18 um (each plateau a rounded
+    # cushion, what gives skin its grain in a photograph). The depth varies along the
+    # walls, some fading out, so that plateaus merge and the net is not a regular mosaic
     wall, cell = _cell_walls(rng, size, 450 / um, 1.5)
-    depth = 30.0 * np.clip(0.75 + 0.4 * _periodic_noise(rng, size, 600 / um), 0.2, 1.3)
-    primary = -depth * np.exp(-wall / (20 / um)) - 10.0 * np.exp(-wall / (110 / um))
+    depth = 30.0 * np.clip(0.75 + 0.6 * _periodic_noise(rng, size, 250 / um), 0.0, 1.5)
+    primary = -depth * np.exp(-wall / (25 / um)) - 18.0 * np.exp(-wall / (80 / um))
     # secondary furrows: cells ~0.15 mm, 7 um deep, in patches
     wall2, _ = _cell_walls(rng, size, 150 / um, 1.2)
     patches = np.clip(0.5 + 0.5 * _periodic_noise(rng, size, 300 / um), 0, 1)
@@ -146,7 +148,7 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     cavity = np.clip(-(furrows - furrows.mean()) / 40.0, 0, 1)
     speckle = 0.6 * _periodic_noise(rng, size, 60.0 / um) + 0.4 * _periodic_noise(rng, size, 180.0 / um)
     plateau = rng.standard_normal(cell.max() + 1)[cell]
-    shade = -0.12 * cavity + 0.05 * speckle + 0.02 * plateau
+    shade = -0.12 * cavity + 0.05 * speckle + 0.04 * plateau
     shade -= shade.mean()
     return np.stack([gx, gy, shade, np.clip(pores, 0, 1)], -1).astype(np.float16)
 
