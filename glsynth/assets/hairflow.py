@@ -6,10 +6,11 @@ their principal axis (the first principal component of their vertices), oriented
 from the trunk (arm and leg hair points towards the hands and feet); the head, torso and
 hips around the vertical, hair pointing down. A corner's coordinates are ``s`` =
 distance along the axis and ``t`` = arc length around it (angle times the part's median
-radius), both in scene units, so the tile keeps its physical size. Every face takes the frame of its first corner's part, and a face
-across the cylinder's cut has its angles unwrapped, so coordinates are continuous inside
-each part; at part borders and along one cut per part (on the side facing the trunk, or
-the back) the hair pattern restarts, which at hair scale reads as nothing in particular.
+radius), both in scene units, so the tile keeps its physical size. Every face takes the
+frame of its first corner's part, and a face across the cylinder's cut has its angles
+unwrapped, so coordinates are continuous inside each part; at part borders and along
+one cut per part (on the side facing the trunk, or the back) the hair pattern restarts,
+which at hair scale reads as nothing in particular.
 Where a part's surface turns across its axis (shoulder tops, the crown, fingers) the
 cylinder stretches the tile; :func:`hair_flow_quality` finds those places, and body
 painting leaves them without hair rather than draw strands several times too long.
