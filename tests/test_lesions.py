@@ -247,6 +247,22 @@ def test_procedural_deterministic():
         assert not np.array_equal(x.image, z.image)
 
 
+def test_procedural_kinds_come_in_shuffled_rounds():
+    """Every round of len(KINDS) lesions holds each preset once, and a set smaller than
+    a round (sim2real's parts: 2 bodies x 3 lesions) draws other presets for other
+    seeds, so that a run of small parts still sees every preset."""
+    from glsynth.assets.lesions import ProceduralLesions
+    k = len(KINDS)
+    bank = ProceduralLesions(2 * k, seed=11)
+    for r in range(2):
+        assert sorted(bank.kind(i) for i in range(r * k, (r + 1) * k)) == sorted(KINDS)
+    seen = {ProceduralLesions(6, seed=s).kind(i) for s in range(12) for i in range(6)}
+    assert seen == set(KINDS)
+    assert [bank.kind(i) for i in range(6)] == [ProceduralLesions(6, seed=11).kind(i) for i in range(6)]
+    only = ProceduralLesions(5, seed=2, kinds=["nevus", "acne"])
+    assert {only.kind(i) for i in range(5)} == {"nevus", "acne"}
+
+
 @pytest.mark.parametrize("preset", KINDS)
 def test_every_preset_on_every_skin_type(preset):
     """A non-empty outline inside the grid, instances that cover it, colours inside the

@@ -392,7 +392,7 @@ def test_a_samples_record_reproduces_its_rendering(xdisplay, tmp_path):
     from glsynth.pipeline import generate
     run = tmp_path / "run"
     generate(load_config(None, ["bodies.count=1", f"bodies.texture_size={TEX}", "lesions.per_body=1",
-                                "views.per_body=1", "views.size=160", "views.flash=1.0",
+                                "lesions.kinds=[nevus]", "views.per_body=1", "views.size=160", "views.flash=1.0",
                                 "views.closeup_flash=1.0", "photo.enabled=false",
                                 "backgrounds.count=1", "seed=5"]), run)
     folder = fmt.RunFolder(run)

@@ -428,10 +428,15 @@ def reference_skin(fitzpatrick: int, size: int, rng) -> np.ndarray:
 
 class ProceduralLesions(Sequence):
     """``n`` seeded procedural conditions (FieldLesion), made when first indexed: presets
-    from ``kinds`` (default: all of KINDS) in turn, each shown on a reference skin of a
+    from ``kinds`` (default: all of KINDS), each shown on a reference skin of a
     Fitzpatrick type drawn from ``fitzpatrick`` (a type, a list, or None for any) on a
     ``size``-cell grid. Lesion i depends only on (seed, i), so a longer set starts with
-    the shorter one."""
+    the shorter one.
+
+    The presets come in rounds: each run of ``len(kinds)`` lesions holds every preset
+    once, in an order shuffled by (seed, round). A set smaller than a round (a run of
+    2 bodies x 3 lesions holds 6) thus draws different presets for different seeds,
+    rather than always the first ones listed."""
 
     def __init__(self, n: int, seed: int = 0, size: int = 256, kinds=None, fitzpatrick=None):
         kinds = list(KINDS if not kinds else ([kinds] if isinstance(kinds, str) else kinds))
@@ -461,9 +466,15 @@ class ProceduralLesions(Sequence):
             self._made[i] = self._make(i)
         return self._made[i]
 
+    def kind(self, i: int) -> str:
+        """The preset of lesion ``i``: position i % len(kinds) in round i // len(kinds)."""
+        k = len(self.kinds)
+        order = np.random.default_rng([self.seed, i // k, 0x6B696E64]).permutation(k)
+        return self.kinds[int(order[i % k])]
+
     def _make(self, i):
         rng = np.random.default_rng([self.seed, i])
-        kind = self.kinds[i % len(self.kinds)]
+        kind = self.kind(i)
         fitz = int(self.types[rng.integers(len(self.types))])
         fields = make_condition(kind, [self.seed, i], size=self.size)
         image = apply_to_skin(fields, reference_skin(fitz, self.size, rng))
