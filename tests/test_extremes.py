@@ -12,6 +12,7 @@ no lesions means no select/blend, nevi layers only with nevi).
 Where the GL image can be checked against an independent path it is: the torch twin
 ``glsynth.diff.shade`` (same Phong terms, grid_sample lookup).
 """
+import dataclasses
 import json
 import os
 import signal
@@ -435,6 +436,34 @@ def test_lesion_larger_than_the_view_is_rejected(small_scene):
     assert time.perf_counter() - t0 < 30
 
 
+def test_spare_lesions_are_tried_when_none_drawn_fits(small_scene, monkeypatch):
+    """A body that can hold none of its drawn lesions takes spares in turn until one
+    fits; spares stay untouched when a drawn lesion fits; without any that fits, the
+    error counts every lesion tried."""
+    from glsynth.pipeline import paste as P
+    sc = small_scene
+    settings = dataclasses.replace(sc.settings, attempts=8)
+    place = P.Paster.place
+    tried = []
+
+    def place_unless_unfit(self, lesion, rng):     # "unfit" lesions never find a place
+        tried.append(lesion.id)
+        return None if lesion.id.startswith("unfit") else place(self, lesion, rng)
+    monkeypatch.setattr(P.Paster, "place", place_unless_unfit)
+    blob = lambda id_: _blob_lesion(np.random.default_rng(1), id_=id_)
+    pasted = P.paste_lesions(sc.r, sc.body, sc.tx, [blob("unfit-a"), blob("unfit-b")], settings,
+                             ("s",), 0, spares=iter([blob("unfit-c"), blob("fits"), blob("later")]))
+    assert [p.lesion_id for p in pasted.placements] == ["fits"]
+    assert tried == ["unfit-a", "unfit-b", "unfit-c", "fits"]
+    tried.clear()
+    pasted = P.paste_lesions(sc.r, sc.body, sc.tx, [blob("first")], settings, ("s",), 0,
+                             spares=iter([blob("spare")]))
+    assert [p.lesion_id for p in pasted.placements] == ["first"] and tried == ["first"]
+    with pytest.raises(P.PasteError, match="none of 3 lesions found a valid place"):
+        P.paste_lesions(sc.r, sc.body, sc.tx, [blob("unfit-a")], settings, ("s",), 0,
+                        spares=[blob("unfit-b"), blob("unfit-c")])
+
+
 def test_body_without_skin_is_a_clear_error_without_retrying(small_scene):
     from glsynth.pipeline.paste import PasteError, PasteSettings, paste_lesions
     sc = small_scene
@@ -723,6 +752,7 @@ def test_kill_during_second_body_views_then_resume(tmp_path):
         time.sleep(0.01)
     proc.wait()
     if not killed:
+        assert proc.returncode == 0, "the run failed before its second body's views"
         pytest.skip("the run finished before the second body's views could be interrupted")
     done = sorted(n[:-5] for n in os.listdir(out / "targets") if n.endswith(".json"))
     assert len(done) < 6

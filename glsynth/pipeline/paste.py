@@ -396,13 +396,25 @@ def _jsonable(meta):
     return json.loads(json.dumps(meta, default=str))
 
 
-def paste_lesions(renderer, body, texels, lesions, settings: PasteSettings, seed_keys, seed):
-    """Place ``lesions`` (a list) on ``body``; returns PastedTextures."""
+def paste_lesions(renderer, body, texels, lesions, settings: PasteSettings, seed_keys, seed,
+                  spares=()):
+    """Place ``lesions`` (a list) on ``body``; returns PastedTextures. When none of them
+    finds a place (conditions larger than the body's flat skin), ``spares`` (an iterable
+    of other lesions) are tried in turn until one does."""
     paster = Paster(renderer, body, texels, settings)
     for i, lesion in enumerate(lesions):
         paster.place(lesion, rng_for(seed, "paste", *seed_keys, i))
+    tried = len(lesions)
     if lesions and not paster.result.placements:
-        raise PasteError(f"{body.mesh.name}: none of {len(lesions)} lesions found a valid place "
+        for lesion in spares:
+            paster.place(lesion, rng_for(seed, "paste", *seed_keys, tried))
+            tried += 1
+            if paster.result.placements:
+                log.warning("%s: none of the %d lesions drawn found a place; placed %s instead",
+                            body.mesh.name, len(lesions), lesion.id)
+                break
+    if lesions and not paster.result.placements:
+        raise PasteError(f"{body.mesh.name}: none of {tried} lesions found a valid place "
                          f"in {settings.attempts} attempts each (too little flat skin for lesions "
                          f"of {settings.size} of the view; lower lesions.size or raise "
                          "paste.max_depth_change)")

@@ -107,11 +107,16 @@ class SelectAndPaste(_Stage):
             self._time("load_body", time.perf_counter() - t0)
             t0 = time.perf_counter()
             rng = rng_for(cfg.seed, "lesion-choice", body_id)
-            chosen = [lesions[int(i)] for i in rng.choice(len(lesions), cfg.lesions.per_body,
-                                                             replace=len(lesions) < cfg.lesions.per_body)]
+            picks = rng.choice(len(lesions), cfg.lesions.per_body,
+                               replace=len(lesions) < cfg.lesions.per_body)
+            chosen = [lesions[int(i)] for i in picks]
+            # the rest of the bank, in a seeded order, for a body that can hold none of these
+            taken = set(picks.tolist())
+            spares = (lesions[int(i)] for i in rng.permutation(len(lesions)) if i not in taken)
             renderer = self.renderer
             texels = TexelGeometry.of(renderer, body.mesh)
-            result = paste_lesions(renderer, body, texels, chosen, settings, (body_id,), cfg.seed)
+            result = paste_lesions(renderer, body, texels, chosen, settings, (body_id,), cfg.seed,
+                                   spares)
             result.save(folder)
             self._time("paste", time.perf_counter() - t0)
             log.info("%s: %d of %d lesions placed", body_id, len(result.placements), len(chosen))
