@@ -419,3 +419,24 @@ def test_fitzpatrick_bands():
     assert ita_range(2) == (41.0, 55.0)
     with pytest.raises(ValueError):
         ita_range(0)
+
+
+@pytest.mark.parametrize("fitz", range(1, 7))
+def test_an_erosion_is_raw_red_on_every_skin_type(fitz):
+    """Where the epidermis is gone the vascular papillary dermis shows: redder (a*) than
+    the skin around it, and than a dermis without that blood would be."""
+    from glsynth.assets import morphology as M
+    from glsynth.assets.colour import srgb_to_lab
+    from glsynth.assets.lesions import reference_skin
+    rng = np.random.default_rng(fitz)
+    b = M.Builder(M.Canvas(rng, 64, 20.0))
+    w = M.smoothstep(-0.5, 0.5, b.c.shape("round", 5.0, irregular=0.0, warp=0.0))
+    b.erode(w, 0.1)
+    fields = b.fields(20.0)
+    skin = reference_skin(fitz, 64, rng)
+    lab = srgb_to_lab(M.apply_to_skin(fields, skin).reshape(-1, 3) / 255.0).reshape(64, 64, 3)
+    fields.f["blood_add"][:] = 0.0       # the same erosion without the dermis' blood
+    pale = srgb_to_lab(M.apply_to_skin(fields, skin).reshape(-1, 3) / 255.0).reshape(64, 64, 3)
+    core, around = w > 0.99, w < 0.01
+    assert np.median(lab[core][:, 1]) > np.median(lab[around][:, 1]) + 5
+    assert np.median(lab[core][:, 1]) > np.median(pale[core][:, 1]) + 5

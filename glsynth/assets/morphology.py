@@ -48,6 +48,9 @@ NEUTRAL = {"melanin": 1.0, "melanin_add": 0.0, "blood": 1.0, "blood_add": 0.0, "
            "gloss": 0.0, "detail": 1.0}
 SCALE_COLOURS = {"white": (236, 232, 226), "silvery": (214, 218, 222), "greasy": (205, 178, 120)}
 CRUST_COLOURS = {"honey": (196, 140, 58), "haemorrhagic": (88, 28, 24), "serous": (170, 120, 70)}
+# blood volume fraction added where the epidermis is gone (Builder.erode): about that of
+# a florid erythema (Builder.erythema amount 2.5)
+ERODED_BLOOD = 0.25
 
 
 @dataclass
@@ -255,7 +258,12 @@ class Builder:
         return CRUST_COLOURS[colour]
 
     def erode(self, w, depth_mm=0.1):
+        """Loss of the epidermis: the papillary dermis shows, its capillary loops close
+        under the surface, so an erosion is raw red and moist, not the pale colour of
+        a dermis without blood."""
         self.mix("epidermis", w, 0.0)
+        self.f["blood_add"] += ERODED_BLOOD * w
+        self.mix("oxygen", w, 0.85)
         self.f["melanin"] *= 1 - 0.8 * w
         self.f["height"] -= depth_mm * w
         self.f["gloss"] = np.maximum(self.f["gloss"], 0.5 * w)
@@ -503,7 +511,7 @@ def _ulcer(b, rng, R):
     b.f["melanin"] *= 1 + 0.8 * w_peri * (1 - bed)                     # periwound darkening
     b.erode(bed, rng.uniform(0.5, 2.0))
     gran = smoothstep(-0.5, 1.0, c.noise(max(0.5, R / 12), 2))
-    b.f["blood_add"] += bed * (0.3 + 0.2 * gran)                        # beefy granulation
+    b.f["blood_add"] += bed * (0.3 - ERODED_BLOOD + 0.2 * gran)         # beefy granulation
     b.f["height"] += 0.08 * bed * gran
     slough = smoothstep(0.2, 1.2, c.noise(R / 2.5, 2)) * bed
     b.crust(slough, rng.uniform(0.4, 0.9), "serous")                    # yellow fibrin
@@ -536,7 +544,7 @@ def _pyogenic_granuloma(b, rng, R):
     sd = c.shape("round", R, irregular=0.1, warp=0.05)
     w = b.weight(sd, R * 0.08)
     b.erode(w, 0.0)
-    b.f["blood_add"] += w * rng.uniform(0.35, 0.55)
+    b.f["blood_add"] += w * (rng.uniform(0.35, 0.55) - ERODED_BLOOD)
     b.f["height"] += rng.uniform(1.0, 3.0) * smoothstep(-R * 0.1, R * 0.7, sd)
     b.f["gloss"] = np.maximum(b.f["gloss"], 0.9 * w)
     collar = smoothstep(R * 0.25, 0, np.abs(sd + R * 0.05))
