@@ -413,9 +413,9 @@ def paste_lesions(renderer, body, texels, lesions, settings: PasteSettings, seed
                 log.warning("%s: none of the %d lesions drawn found a place; placed %s instead",
                             body.mesh.name, len(lesions), lesion.id)
                 break
-    if lesions and not paster.result.placements:
-        raise PasteError(f"{body.mesh.name}: none of {tried} lesions found a valid place "
-                         f"in {settings.attempts} attempts each (too little flat skin for lesions "
-                         f"of {settings.size} of the view; lower lesions.size or raise "
-                         "paste.max_depth_change)")
+        else:
+            raise PasteError(f"{body.mesh.name}: none of {tried} lesions found a valid place "
+                             f"in {settings.attempts} attempts each (too little flat skin for "
+                             f"lesions of {settings.size} of the view; lower lesions.size or raise "
+                             "paste.max_depth_change)")
     return paster.result
