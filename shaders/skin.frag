@@ -151,11 +151,11 @@ void main() {
     float macro_lod = lod - log2(u_macro_scale);
     p1.rgb += macro_w * relief_along(i1, macro_at, macro_lod, u1, v1).rgb;
     p2.rgb += macro_w * relief_along(i2, macro_at, macro_lod, u2, v2).rgb;
-    // the height gradient of each projection in world axes, blended, then kept in the
-    // tangent plane (the surface gradient)
     // at relief level 1 (0.5 in the map, most skin) the tile's own depths; lichenified
     // skin (detail weight above 1) deepens it
     float relief = level * u_relief_amount * max(detail_weight, 1.0);
+    // the height gradient of each projection in world axes, blended, then kept in the
+    // tangent plane (the surface gradient)
     grad += relief * (w.x * (p1.r * u1 + p1.g * v1) + w.y * (p2.r * u2 + p2.g * v2));
     // albedo: furrow darkening and melanin speckle (mean 0 over the tile), pores (their
     // mean darkening over the tile, u_pore_mean, given back so far views keep the colour)
