@@ -226,9 +226,50 @@ def test_interrupted_training_resumes_to_the_same_weights(synth, tmp_path):
         train(synth, tmp_path / "b.pt", **kw)
     done = train(synth, tmp_path / "b.pt", resume=True, **kw)
     assert done["step"] == full["step"] == 4
-    for k, v in full["model"].items():
-        assert torch.allclose(v.float(), done["model"][k].float(), atol=1e-6), k
+    for key in ("model", "train_model"):   # the weight average and the raw weights
+        for k, v in full[key].items():
+            assert torch.allclose(v.float(), done[key][k].float(), atol=1e-6), (key, k)
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".tmp-")]
+
+
+def test_weight_average_follows_its_recurrence_with_the_warm_up():
+    from glsynth.train.trainer import WeightAverage
+    net = torch.nn.Sequential(torch.nn.Linear(3, 2), torch.nn.BatchNorm1d(2))
+    avg = WeightAverage(net, decay=0.9)
+    rng = np.random.default_rng(7)
+    ref = {k: v.double().clone() for k, v in net.state_dict().items()}
+    for step in range(30):
+        with torch.no_grad():
+            for v in net.state_dict().values():
+                if v.is_floating_point():
+                    v.copy_(torch.from_numpy(rng.normal(size=tuple(v.shape))))
+        net.train()(torch.randn(4, 3))                       # moves the batch counter
+        avg.update(net, step)
+        d = min(0.9, (1 + step) / (10 + step))
+        for k, v in net.state_dict().items():
+            ref[k] = d * ref[k] + (1 - d) * v.double() if v.is_floating_point() else v.double()
+    for k, v in avg.state.items():
+        assert torch.allclose(v.double(), ref[k], atol=1e-6), k
+    assert int(avg.state["1.num_batches_tracked"]) == 30
+    live = {k: v.clone() for k, v in net.state_dict().items()}
+    avg.swap(net)
+    for k, v in net.state_dict().items():                 # the model now holds the average
+        assert torch.allclose(v.double(), ref[k], atol=1e-6), k
+    avg.swap(net)
+    assert all(torch.equal(net.state_dict()[k], v) for k, v in live.items())
+
+
+def test_ema_zero_exports_the_last_weights(synth, tmp_path):
+    kw = dict(FAST, size=48, epochs=1, seed=5, batch_size=2)
+    last = train(synth, tmp_path / "a.pt", ema=0.0, **kw)
+    avg = train(synth, tmp_path / "b.pt", **kw)
+    assert "train_model" not in last and avg["hparams"]["ema"] == 0.999
+    for k, v in last["model"].items():                  # same run, same raw weights
+        assert torch.equal(v, avg["train_model"][k]), k
+    assert any(not torch.equal(v, avg["model"][k]) for k, v in last["model"].items()
+               if v.is_floating_point())
+    with pytest.raises(gs.errors.InputError):
+        train(synth, tmp_path / "c.pt", ema=1.0, **kw)
 
 
 # ---------------------------------------------------------------------------------------

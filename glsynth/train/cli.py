@@ -22,7 +22,7 @@ def cmd_train(args):
                workers=args.workers, width=args.width, depth=args.depth,
                save_every=args.save_every, progress=not args.quiet, val=args.val,
                val_layout=args.val_layout, val_every=args.val_every, real_train=args.real_train,
-               real_layout=args.real_layout, real_ratio=args.real_ratio)
+               real_layout=args.real_layout, real_ratio=args.real_ratio, ema=args.ema)
     h = ck["history"][-1] if ck["history"] else {}
     print(f"wrote {args.out}: epoch {ck['epoch']}/{ck['epochs_planned']}, step {ck['step']}, "
           f"{ck['n_parameters']} parameters" + (f", last epoch loss {h['loss']:.4f}" if h else "")
@@ -80,6 +80,9 @@ def register(sub):
     p.add_argument("--real-layout", default="fitz17k", choices=("fitz17k", "pairs"))
     p.add_argument("--real-ratio", type=float, default=0.25,
                    help="share of real images in each batch with --real-train (default 0.25)")
+    p.add_argument("--ema", type=float, default=0.999, metavar="DECAY",
+                   help="validate and export an exponential moving average of the weights with "
+                        "this decay (default 0.999, about the last 1,000 steps; 0: the last weights)")
     p.add_argument("--workers", type=int, default=0, help="data loader processes (default 0)")
     p.add_argument("--save-every", type=float, default=5.0, metavar="MIN",
                    help="also checkpoint every MIN minutes within an epoch (default 5)")

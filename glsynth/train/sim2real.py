@@ -219,6 +219,7 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
         "checkpoint": os.path.basename(model_path), "val": os.fspath(val) if val else None,
         "n_val_images": n_val, "best": ck.get("best"), "gen_share": gen_share,
         "size": size, "width": width, "depth": depth, "n_parameters": ck.get("n_parameters"),
+        "ema": ck["hparams"].get("ema", 0.0),
         "seed": seed}}
     summary = evaluate(model_path, real, layout, out, device=device, progress=progress, extra=extra)
     spent["evaluate"] = time.perf_counter() - t0
