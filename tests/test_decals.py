@@ -118,3 +118,49 @@ def test_relief_changes_shading_but_not_labels(renderer, rng):
                             material=Material(model="skin", detail=False)) for m in (flat, bumpy)]
     assert (outs[0]["instances"] == outs[1]["instances"]).all()
     assert np.abs(outs[0]["rgb"] - outs[1]["rgb"]).mean() > 2 / 255
+
+
+def test_condition_decal_hides_the_texture_copy_of_its_outline(rng):
+    """Pasting also paints a procedural condition into the body texture, at texel
+    resolution; a close-up must show the decal's sharp outline and clean skin around it,
+    not that coarse copy bleeding past the edge (it showed as a dark halo with a pale rim
+    inside it). Rendered over the pasted texture and over the original one, the decal's
+    surroundings look the same."""
+    import cv2
+
+    from glsynth.assets.lesions import ProceduralLesions
+    from glsynth.pipeline.bodies import TexelGeometry
+    from glsynth.pipeline.decals import build_decals
+    from glsynth.pipeline.paste import PasteSettings, paste_lesions
+    from shapes import skin_sheet
+
+    size = 256
+    r = gs.Renderer(size, size)
+    body = skin_sheet(rng, tex=512, amplitude=10)
+    tx = TexelGeometry.of(r, body.mesh)
+    lesion = ProceduralLesions(1, seed=int(rng.integers(1000)), size=128, kinds=["melanoma"],
+                               fitzpatrick=int(rng.integers(1, 7)))[0]
+    settings = PasteSettings(view_size=size, w=(0.05, 0.06), size=(0.3, 0.5), max_depth_change=0.05)
+    pasted = paste_lesions(r, body, tx, [lesion], settings, ("halo",), int(rng.integers(1000)))
+    p = pasted.placements[0]
+    decals = build_decals(r, body.mesh, tx, pasted.original, pasted.pasted, pasted.pasted,
+                          pasted.placements, lambda _: lesion, size=512)
+    cam = gs.Camera.from_dict(p.camera)                   # the placement view: 5-6 cm wide
+    unlit = [PointLight((0, 0, 0), ambient=1.0, diffuse=0.0, specular=0.0)]
+    on = {name: r.render(body.mesh.copy_with(texture=t, decals=decals), cam, passes=("rgb", "labels"),
+                         lights=unlit, material=Material(0.0, 1.0),
+                         label_textures={"instances": np.zeros(t.shape[:2], np.uint16)},
+                         decal_labels="instances")
+          for name, t in (("pasted", pasted.pasted), ("original", pasted.original))}
+    lesion_px = on["pasted"]["instances"] > 0
+    assert 0.02 < lesion_px.mean() < 0.9
+    # a band of one and a half body texels (0.6 m / 512) outside the outline, in view pixels
+    view_w = 2 * np.linalg.norm(np.subtract(cam.eye, cam.target)) * math.tan(math.radians(cam.fov_deg) / 2)
+    texel_px = size / view_w * 0.6 / 512
+    dist = cv2.distanceTransform((~lesion_px).astype(np.uint8), cv2.DIST_L2, 5)
+    band = (dist > 0) & (dist <= 1.5 * texel_px)
+    assert band.sum() > 100, (band.sum(), texel_px)
+    diff_ = np.abs(on["pasted"]["rgb"] - on["original"]["rgb"]).max(-1)
+    # (without the widened coverage: up to 25-70 levels darker next to the outline)
+    assert diff_[band].mean() < 0.1 / 255 and diff_[band].max() <= 1 / 255, \
+        (diff_[band].mean() * 255, diff_[band].max() * 255)

@@ -133,11 +133,13 @@ def build_decals(renderer, mesh, texels, original, pasted, final, placements, le
         a[:, :2] = 128
         pixel_world = 2 * float(np.linalg.norm(np.subtract(cam.target, cam.eye))) \
             * math.tan(math.radians(cam.fov_deg) / 2) / size
+        seen = _seen_texels(texels, cam, out)
         if p.kind == "fields":
             # d(grid pixel)/d(decal pixel), and world units per mm of height
             jac = inv[:, :2] / scale
             _fields_decal(lesion.fields, src, uv, original, p, c, a, instances[i], rows, cols,
                           jac, unit / 1000.0 / pixel_world)
+            _cover_texture_bleed(c, instances[i], rows, cols, seen, fg)
         else:
             _image_decal(lesion, src, uv, pasted, final, p, c, a, instances[i], rows, cols)
         colour[i][fg] = np.clip(np.rint(c), 0, 255).astype(np.uint8)
@@ -146,7 +148,7 @@ def build_decals(renderer, mesh, texels, original, pasted, final, placements, le
         view_m = cam.view_matrix()
         axes[i] = [view_m[0, :3], -view_m[1, :3]]
         texel[i] = pixel_world
-        _mark_region(region, i + 1, texels, cam, out, colour[i][..., 3], margin)
+        _mark_region(region, i + 1, seen, colour[i][..., 3], margin)
     return Decals(region, projection, axes, texel, colour, aux, instances)
 
 
@@ -192,17 +194,16 @@ def _image_decal(lesion, src, uv, pasted, final, p, c, a, inst, rows, cols):
     inst[rows, cols] = np.where(m > 0.5, p.instance, 0).astype(np.uint16)
 
 
-def _mark_region(region, layer, texels, cam, out, alpha, margin):
-    """Give ``layer`` to the texels whose surface point the decal sees with coverage > 0,
-    and to ``margin`` rings of visible texels around them."""
+def _seen_texels(texels, cam, out):
+    """The body texels the decal camera sees: (texture rows, texture columns, decal
+    column, decal row) of each texel near the look-at point whose surface point is
+    visible in the decal."""
     target = np.asarray(cam.target)
     eye = np.asarray(cam.eye)
     w = float(np.linalg.norm(target - eye))
     radius = w * math.tan(math.radians(cam.fov_deg) / 2) * 1.5
     near = np.nonzero(np.sum((texels.points - target) ** 2, axis=1) < radius ** 2)[0]
-    if not len(near):
-        return
-    px = cam.project(texels.points[near])
+    px = cam.project(texels.points[near]) if len(near) else np.zeros((0, 2))
     size = cam.width
     ix = np.clip(np.floor(px[:, 0]).astype(int), 0, size - 1)
     iy = np.clip(np.floor(px[:, 1]).astype(int), 0, size - 1)
@@ -210,13 +211,42 @@ def _mark_region(region, layer, texels, cam, out, alpha, margin):
     z = (texels.points[near] - eye) @ ((target - eye) / w)
     facing = ((eye - texels.points[near]) * texels.normals[near]).sum(1) > 0
     seen = inside & facing & (np.abs(z - out["depth"][iy, ix]) <= 0.01 * w + 1e-4)
-    r, c = texels.rows[near], texels.cols[near]
-    covered = seen & (alpha[iy, ix] > 0)
+    return texels.rows[near][seen], texels.cols[near][seen], ix[seen], iy[seen]
+
+
+def _cover_texture_bleed(c, inst, rows, cols, seen, fg):
+    """Widen a procedural condition's coverage over the band where the body texture's
+    own copy of the lesion bleeds out.
+
+    Pasting also painted the condition into the body texture, at texel resolution, and
+    the renderer samples that texture bilinearly: its dark (or red) lesion texels shade
+    up to a texel beyond the outline. Where the decal's coverage ended at the outline,
+    that low-resolution bleed showed outside the sharp decal edge as a dark halo, with
+    the decal's own clean skin just inside it reading as a pale rim. The decal already
+    holds the clean skin there (the condition applied to the original texture), so it
+    now covers two texels beyond the outline, fading out over the last half."""
+    n_px = int(fg.sum())
+    if not len(seen[0]) or not n_px:
+        return
+    texel_px = math.sqrt(n_px / len(seen[0]))             # decal pixels per body texel
+    outside = np.ascontiguousarray((inst == 0).astype(np.uint8))
+    dist = cv2.distanceTransform(outside, cv2.DIST_L2, 5)[rows, cols]
+    rim = np.clip((2.0 * texel_px - dist) / (0.5 * texel_px), 0, 1)
+    c[:, 3] = np.maximum(c[:, 3], 255 * rim)
+
+
+def _mark_region(region, layer, seen, alpha, margin):
+    """Give ``layer`` to the texels whose surface point the decal sees with coverage > 0
+    (``seen``: from _seen_texels), and to ``margin`` rings of seen texels around them."""
+    r, c, ix, iy = seen
+    if not len(r):
+        return
+    covered = alpha[iy, ix] > 0
     mark = np.zeros(region.shape, bool)
     mark[r[covered], c[covered]] = True
     if margin:
         ok = np.zeros(region.shape, bool)
-        ok[r[seen], c[seen]] = True
+        ok[r, c] = True
         k = np.ones((2 * margin + 1,) * 2, np.uint8)
         mark |= (cv2.dilate(mark.view(np.uint8), k) > 0) & ok
     region[mark & (region == 0)] = layer
