@@ -7,6 +7,7 @@ dataset, ``glsynth preview``, ``glsynth show`` and the training code.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import os
@@ -140,7 +141,6 @@ def camera_from_record(record: dict):
 
 def lights_from_record(record: dict) -> list:
     """The PointLights of a record: ``lights`` (room light first), else ``light``."""
-    import dataclasses
     from .lighting import PointLight
     dicts = record.get("lights") or [record["light"]]
     keys = [f.name for f in dataclasses.fields(PointLight)]
