@@ -5,8 +5,10 @@ rasterised in UV space (:func:`uv_raster`: for each texel its face and barycentr
 which gives every texel its 3D position, normal and part scores; noise and region masks
 are evaluated there, so a UV seam shows no discontinuity. Low-frequency fields are
 evaluated on vertices and interpolated; fine fields (pores, fabric, hair strands) per
-texel. Uncovered texels take the value of the nearest covered one, so bilinear and
-mipmapped sampling never pick up a background colour.
+texel. A gutter a few texels wide around each UV island is painted too, at the 3D
+positions its nearest face extrapolates to (:func:`extend_raster`), so that bilinear
+sampling at an island's border continues the pattern across the seam instead of
+repeating the border texel; texels beyond it take the value of the nearest painted one.
 
 Skin colour is built in CIELAB: a base colour on a skin locus for the requested ITA
 (``ITA = atan2(L* - 50, b*)``, see :mod:`glsynth.assets.colour`), then tone variation,
@@ -111,6 +113,41 @@ def uv_raster(uvs, face_uvs, size: int, chunk: int = 4096):
         bary[yy, xx] = np.stack([b0[t, r, k], b1[t, r, k], b2[t, r, k]], -1)
     return face, bary
 
+
+
+def extend_raster(face, bary, uvs, face_uvs, width: int = 4, reach: float = 1.0):
+    """Extend a :func:`uv_raster` ``width`` texels past the border of every UV island.
+
+    An uncovered texel that close to a covered one takes that texel's face and its own
+    barycentric coordinates in it (some negative), i.e. the point where the face's plane
+    continues; fields evaluated there continue across a UV seam to first order, where a
+    copy of the border texel would leave a step of about one texel's worth of the
+    field's gradient (visible in close-ups as a line along the seam). Texels whose
+    extrapolation would reach further than ``reach`` face-widths (slivers) stay
+    uncovered. Returns the extended (face, bary) and, per texel, the flat index of the
+    covered texel it was extended from (itself where covered): UV-space images are read
+    there, since their own gutters hold nothing meaningful.
+    """
+    H, W = face.shape
+    covered = face >= 0
+    dist, (ri, ci) = ndimage.distance_transform_edt(~covered, return_indices=True)
+    source = (ri * W + ci).astype(np.int64)
+    gy, gx = np.nonzero(~covered & (dist <= width))
+    f = face[ri[gy, gx], ci[gy, gx]]
+    tri = np.asarray(uvs, np.float64)[np.asarray(face_uvs)[f]]
+    px, py = tri[..., 0] * W - 0.5, (1.0 - tri[..., 1]) * H - 0.5
+    e1x, e1y = px[:, 1] - px[:, 0], py[:, 1] - py[:, 0]
+    e2x, e2y = px[:, 2] - px[:, 0], py[:, 2] - py[:, 0]
+    dx, dy = gx - px[:, 0], gy - py[:, 0]
+    den = e1x * e2y - e2x * e1y   # covered faces are never degenerate (uv_raster)
+    b1 = (dx * e2y - e2x * dy) / den
+    b2 = (e1x * dy - dx * e1y) / den
+    b = np.stack([1.0 - b1 - b2, b1, b2], 1)
+    ok = b.min(1) >= -reach
+    face, bary = face.copy(), bary.copy()
+    face[gy[ok], gx[ok]] = f[ok]
+    bary[gy[ok], gx[ok]] = b[ok]
+    return face, bary, source
 
 # ---- noise ------------------------------------------------------------------------------
 class Noise3D:
@@ -302,20 +339,22 @@ class Paint:
 
 
 class _Texels:
-    """Covered texels of a body: flat index, face, barycentrics, 3D position and normal
-    (rest pose), part scores."""
+    """Painted texels of a body (covered ones and their gutter, see extend_raster): flat
+    index, face, barycentrics, 3D position and normal (rest pose), part scores."""
 
-    def __init__(self, size, face, bary, vertices, faces, vnormals, vchannels, vlabels):
+    def __init__(self, size, face, bary, source, vertices, faces, vnormals, vchannels, vlabels):
         self.size = size
         cov = face >= 0
         self.idx = np.flatnonzero(cov)
+        self.source = source.ravel()[self.idx]
+        self.n_covered = int((self.source == self.idx).sum())
         self.face = face.ravel()[self.idx]
         self.bary = bary.reshape(-1, 3)[self.idx]
         self.corners = faces[self.face]
         self.pos = self.interp(vertices)
         n = self.interp(vnormals)
         self.nrm = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        ch = self.interp(vchannels)
+        ch = np.clip(self.interp(vchannels), 0.0, 1.0)   # gutter texels extrapolate
         self.ch = {name: ch[:, i] for i, name in enumerate(CHANNELS)}
         self.label = vlabels[self.corners[np.arange(len(self.idx)), np.argmax(self.bary, 1)]]
 
@@ -324,8 +363,9 @@ class _Texels:
         return np.einsum("nk,nk...->n...", self.bary, v[self.corners]).astype(np.float32)
 
     def sample(self, image):
-        """Values of a size x size image at the covered texels."""
-        return image.reshape(self.size * self.size, *image.shape[2:])[self.idx]
+        """Values of a size x size UV-space image at the texels (a gutter texel reads
+        the covered texel it extends)."""
+        return image.reshape(self.size * self.size, *image.shape[2:])[self.source]
 
     def scatter(self, values, fill=0):
         out = np.full((self.size * self.size,) + values.shape[1:], fill, values.dtype)
@@ -354,8 +394,9 @@ def paint_body(vertices, faces, uvs, face_uvs, scores, labels, joints, look: Loo
     """
     v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     face, bary = raster if raster is not None else uv_raster(uvs, face_uvs, size)
+    face, bary, source = extend_raster(face, bary, uvs, face_uvs)
     vch = np.stack([np.asarray(scores)[:, list(p)].sum(1) for p in CHANNELS.values()], 1)
-    tx = _Texels(size, face, bary, v, f, _vertex_normals(v, f), vch, np.asarray(labels))
+    tx = _Texels(size, face, bary, source, v, f, _vertex_normals(v, f), vch, np.asarray(labels))
     painter = _Painter(tx, v, f, joints, look, hair_quality)
     return painter.run()
 
@@ -374,7 +415,7 @@ class _Painter:
         # texel footprint in metres (for pore frequency and nevus sizes)
         cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         area3 = np.linalg.norm(cross, axis=1).sum() / 2
-        self.texel_m = float(np.sqrt(area3 / n))
+        self.texel_m = float(np.sqrt(area3 / tx.n_covered))
 
     def over(self, rgb, alpha, region=None, sel=None):
         """Composite non-skin paint (sRGB 0..1 per texel or one colour) with coverage
@@ -595,7 +636,7 @@ class _Painter:
         boxes = []
         rows, cols = tx.idx // tx.size, tx.idx % tx.size
         banned = self._nevus_banned()
-        cand = np.flatnonzero(~banned)
+        cand = np.flatnonzero(~banned & (tx.source == tx.idx))   # centred on the surface
         tries = 0
         while len(boxes) < self.look.n_nevi and tries < 20 * max(self.look.n_nevi, 1) and len(cand):
             tries += 1
@@ -831,8 +872,8 @@ def _calibrate_ita(lab, target, n=200_000):
 
 
 def _fill_uncovered(tx: _Texels, *per_texel):
-    """Scatter the texel values and give every uncovered texel the value of its nearest
-    covered texel (padding across UV island borders for bilinear / mipmapped sampling)."""
+    """Scatter the texel values and give every unpainted texel the value of its nearest
+    painted texel (padding beyond the gutter, for mipmapped sampling)."""
     size = tx.size
     covered = np.zeros(size * size, bool)
     covered[tx.idx] = True

@@ -16,7 +16,7 @@ from scipy import ndimage
 
 from ..errors import MeshError
 from ..mesh import Mesh
-from .skin import uv_raster
+from .skin import extend_raster, uv_raster
 
 log = logging.getLogger(__name__)
 
@@ -84,18 +84,20 @@ def bake_vertex_colors(faces, uvs, face_uvs, colors, size: int, dilate: int = 4,
     """A ``size`` x ``size`` RGB uint8 texture (row 0 = v 1) holding the per-vertex
     ``colors`` (V,3) interpolated over each face in UV space.
 
-    Texels outside every face take the colour of the nearest covered texel up to
-    ``dilate`` texels away (so bilinear sampling at chart borders does not reach the
-    background), the mean colour beyond.
+    Texels up to ``dilate`` texels outside every face continue the nearest face's
+    colour gradient (:func:`glsynth.assets.skin.extend_raster`; so bilinear sampling at
+    chart borders neither reaches the background nor shows a seam), or where that face
+    is a sliver copy the nearest painted texel; texels beyond take the mean colour.
     """
     colors = np.asarray(colors)
     if colors.ndim != 2 or colors.shape[1] < 3:
         raise MeshError(f"{name}: vertex colours must be (V, 3) or (V, 4), got {colors.shape}")
     colors = colors[:, :3].astype(np.float64)
     face_id, bary = uv_raster(uvs, face_uvs, size)
-    covered = face_id >= 0
-    if not covered.any():
+    if not (face_id >= 0).any():
         raise MeshError(f"{name}: no face covers a texel centre of a {size}x{size} texture")
+    face_id, bary, _ = extend_raster(face_id, bary, uvs, face_uvs, width=dilate)
+    covered = face_id >= 0
     corners = np.asarray(faces)[face_id[covered]]
     texture = np.empty((size, size, 3), np.float64)
     texture[covered] = np.einsum("nk,nkc->nc", bary[covered], colors[corners])
