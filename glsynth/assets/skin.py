@@ -255,6 +255,7 @@ class Look:
     age: float = 0.7               # anny's age parameter (1/3 child, 2/3 young adult, 1 old)
     hirsute: float = 0.3           # 0..1, amount of terminal body hair
     oily: float = 0.5              # 0..1, sebum production
+    blotchy: float = 0.35          # 0..1, how uneven the skin's redness is over centimetres
 
     def to_dict(self) -> dict:
         return {"ita": self.ita, "hair": self.hair, "hair_rgb": list(self.hair_rgb),
@@ -262,7 +263,7 @@ class Look:
                 "n_nevi": self.n_nevi, "freckles": self.freckles,
                 "receding": self.receding, "hair_texture": self.hair_texture,
                 "seed": self.seed, "male": self.male, "age": self.age,
-                "hirsute": self.hirsute, "oily": self.oily}
+                "hirsute": self.hirsute, "oily": self.oily, "blotchy": self.blotchy}
 
 
 def normalise_clothing(clothing, female: bool, rng: np.random.Generator) -> dict:
@@ -324,7 +325,8 @@ def sample_look(rng: np.random.Generator, ita: float, female: bool, age: float,
         else "straight",
         seed=int(rng.integers(2 ** 31)), male=not female, age=float(age),
         hirsute=float(rng.uniform(0.25, 1.0) if not female else rng.uniform(0.0, 0.3)),
-        oily=float(np.clip(rng.uniform(0.2, 1.0) - 0.5 * old, 0, 1)))
+        oily=float(np.clip(rng.uniform(0.2, 1.0) - 0.5 * old, 0, 1)),
+        blotchy=float(rng.beta(1.5, 1.5)))
 
 
 # ---- painting ---------------------------------------------------------------------------
@@ -515,8 +517,14 @@ class _Painter:
         mid = tx.interp(nz.fbm(self.v + 17.0, 25.0, 2))
         hue = tx.interp(nz.fbm(self.v - 31.0, 8.0, 2))
         blotch = tx.interp(nz.fbm(self.v + 3.0, 50.0, 2))
+        # How blotchy redness is varies between people far more than one amplitude
+        # allows (vascular reactivity, sun damage, cold limbs): the factor `uneven`
+        # (0.6-3.4x) scales the redness that blood adds, never taking any away (skin with
+        # less blood than its base colour turns olive, not green)
+        uneven = 0.6 + 2.8 * self.look.blotchy
         L = L0 + 4.0 * low + 3.0 * mid
-        a = a0 + 3.0 * hue + 1.5 * mid + 6.0 * vis * np.clip(blotch, 0, None)
+        a = (a0 + 3.0 * hue + 1.5 * mid + 3.0 * (uneven - 1.0) * np.clip(hue, 0, None)
+             + 6.0 * uneven * vis * np.clip(blotch, 0, None))
         b = b0 + 1.5 * low - 1.2 * hue
         # mottling at the scale of millimetres (per texel): uneven melanin and the
         # superficial vascular plexus showing through, what makes real skin up close
@@ -526,7 +534,7 @@ class _Painter:
         melanin = nz.fbm(p + 41.0, 110.0, 3)
         blood = nz.fbm(p - 57.0, 140.0, 3)
         L += 7.0 * melanin - 2.5 * vis * np.clip(blood, 0, None)
-        a += 7.0 * vis * blood
+        a += 7.0 * vis * blood + 7.0 * (np.sqrt(uneven) - 1.0) * vis * np.clip(blood, 0, None)
         b += 3.5 * melanin
         # pores / fine grain per texel, scaled to the texel footprint
         fine = nz(p, 0.45 / self.texel_m)
