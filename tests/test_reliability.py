@@ -38,8 +38,11 @@ def _cli_args(out, sets):
 
 def _start_cli(out, sets):
     """`glsynth generate` in a subprocess; returns it once it has started on the bodies."""
+    # Ctrl-C as in a terminal: a shell's background job (`pytest ... &`) ignores SIGINT,
+    # and a child inherits that, so Python would never turn it into KeyboardInterrupt
     proc = subprocess.Popen([sys.executable, "-m", "glsynth.cli", *_cli_args(out, sets)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 300
     while not (out / "bodies").is_dir():
         if proc.poll() is not None or time.time() > deadline:
