@@ -76,22 +76,40 @@ def skin_lab(ita: float) -> np.ndarray:
 
 
 # ---- UV rasterisation -----------------------------------------------------------------
+def _texel_triangles(uvs, face_uvs, size: int):
+    """Each face's UV triangle in texel coordinates of a ``size`` x ``size`` texture (x
+    right, y down from v = 1; texel (row r, column c) has its centre at (c, r)): the
+    corners' x and y, (F, 3) each."""
+    tri = np.asarray(uvs, np.float64)[np.asarray(face_uvs)]
+    return tri[..., 0] * size - 0.5, (1.0 - tri[..., 1]) * size - 0.5
+
+
+def _barycentric(px, py, x, y):
+    """Barycentric coordinates (b0, b1, b2) of the points (x, y) in the triangles with
+    corners px, py (..., 3), broadcast against x and y."""
+    ax, ay = px[..., 0], py[..., 0]
+    e1x, e1y, e2x, e2y = px[..., 1] - ax, py[..., 1] - ay, px[..., 2] - ax, py[..., 2] - ay
+    den = e1x * e2y - e2x * e1y
+    dx, dy = x - ax, y - ay
+    b1 = (dx * e2y - e2x * dy) / den
+    b2 = (e1x * dy - dx * e1y) / den
+    return 1.0 - b1 - b2, b1, b2
+
+
 def uv_raster(uvs, face_uvs, size: int, chunk: int = 4096):
     """For each texel centre of a ``size`` x ``size`` texture (row 0 = v 1), the face that
     covers it in UV space (-1: none) and its barycentric coordinates. Numpy, ~2.5 s at
     2048."""
     H = W = int(size)
-    tri = np.asarray(uvs, np.float64)[np.asarray(face_uvs)]
-    px, py = tri[..., 0] * W - 0.5, (1.0 - tri[..., 1]) * H - 0.5
+    px, py = _texel_triangles(uvs, face_uvs, size)
     x0 = np.clip(np.ceil(px.min(1)), 0, W - 1).astype(np.int64)
     x1 = np.clip(np.floor(px.max(1)), 0, W - 1).astype(np.int64)
     y0 = np.clip(np.ceil(py.min(1)), 0, H - 1).astype(np.int64)
     y1 = np.clip(np.floor(py.max(1)), 0, H - 1).astype(np.int64)
     bw, bh = x1 - x0 + 1, y1 - y0 + 1
-    ax, ay = px[:, 0], py[:, 0]
-    e1x, e1y, e2x, e2y = px[:, 1] - ax, py[:, 1] - ay, px[:, 2] - ax, py[:, 2] - ay
-    den = e1x * e2y - e2x * e1y
-    ok = (bw > 0) & (bh > 0) & (np.abs(den) > 1e-12)
+    area2 = ((px[:, 1] - px[:, 0]) * (py[:, 2] - py[:, 0])
+             - (px[:, 2] - px[:, 0]) * (py[:, 1] - py[:, 0]))
+    ok = (bw > 0) & (bh > 0) & (np.abs(area2) > 1e-12)
     order = np.argsort(np.maximum(bw, bh), kind="stable")
     order = order[ok[order]]
     face = np.full((H, W), -1, np.int32)
@@ -101,10 +119,7 @@ def uv_raster(uvs, face_uvs, size: int, chunk: int = 4096):
         c = (slice(None), None, None)
         gx = x0[idx][c] + np.arange(bw[idx].max())[None, None, :]
         gy = y0[idx][c] + np.arange(bh[idx].max())[None, :, None]
-        dx, dy = gx - ax[idx][c], gy - ay[idx][c]
-        b1 = (dx * e2y[idx][c] - e2x[idx][c] * dy) / den[idx][c]
-        b2 = (e1x[idx][c] * dy - dx * e1y[idx][c]) / den[idx][c]
-        b0 = 1.0 - b1 - b2
+        b0, b1, b2 = _barycentric(px[idx][:, None, None], py[idx][:, None, None], gx, gy)
         inside = ((b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
                   & (gx <= x1[idx][c]) & (gy <= y1[idx][c]))
         t, r, k = np.nonzero(inside)
@@ -112,7 +127,6 @@ def uv_raster(uvs, face_uvs, size: int, chunk: int = 4096):
         face[yy, xx] = idx[t]
         bary[yy, xx] = np.stack([b0[t, r, k], b1[t, r, k], b2[t, r, k]], -1)
     return face, bary
-
 
 
 def extend_raster(face, bary, uvs, face_uvs, width: int = 4, reach: float = 1.0):
@@ -133,21 +147,15 @@ def extend_raster(face, bary, uvs, face_uvs, width: int = 4, reach: float = 1.0)
     dist, (ri, ci) = ndimage.distance_transform_edt(~covered, return_indices=True)
     source = (ri * W + ci).astype(np.int64)
     gy, gx = np.nonzero(~covered & (dist <= width))
-    f = face[ri[gy, gx], ci[gy, gx]]
-    tri = np.asarray(uvs, np.float64)[np.asarray(face_uvs)[f]]
-    px, py = tri[..., 0] * W - 0.5, (1.0 - tri[..., 1]) * H - 0.5
-    e1x, e1y = px[:, 1] - px[:, 0], py[:, 1] - py[:, 0]
-    e2x, e2y = px[:, 2] - px[:, 0], py[:, 2] - py[:, 0]
-    dx, dy = gx - px[:, 0], gy - py[:, 0]
-    den = e1x * e2y - e2x * e1y   # covered faces are never degenerate (uv_raster)
-    b1 = (dx * e2y - e2x * dy) / den
-    b2 = (e1x * dy - dx * e1y) / den
-    b = np.stack([1.0 - b1 - b2, b1, b2], 1)
+    f = face[ri[gy, gx], ci[gy, gx]]   # covered faces are never degenerate (uv_raster)
+    px, py = _texel_triangles(uvs, np.asarray(face_uvs)[f], W)
+    b = np.stack(_barycentric(px, py, gx, gy), 1)
     ok = b.min(1) >= -reach
     face, bary = face.copy(), bary.copy()
     face[gy[ok], gx[ok]] = f[ok]
     bary[gy[ok], gx[ok]] = b[ok]
     return face, bary, source
+
 
 # ---- noise ------------------------------------------------------------------------------
 class Noise3D:
@@ -349,7 +357,7 @@ class _Texels:
         cov = face >= 0
         self.idx = np.flatnonzero(cov)
         self.source = source.ravel()[self.idx]
-        self.n_covered = int((self.source == self.idx).sum())
+        self.on_surface = self.source == self.idx   # covered, not gutter
         self.face = face.ravel()[self.idx]
         self.bary = bary.reshape(-1, 3)[self.idx]
         self.corners = faces[self.face]
@@ -417,7 +425,7 @@ class _Painter:
         # texel footprint in metres (for pore frequency and nevus sizes)
         cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         area3 = np.linalg.norm(cross, axis=1).sum() / 2
-        self.texel_m = float(np.sqrt(area3 / tx.n_covered))
+        self.texel_m = float(np.sqrt(area3 / tx.on_surface.sum()))
 
     def over(self, rgb, alpha, region=None, sel=None):
         """Composite non-skin paint (sRGB 0..1 per texel or one colour) with coverage
@@ -644,7 +652,7 @@ class _Painter:
         boxes = []
         rows, cols = tx.idx // tx.size, tx.idx % tx.size
         banned = self._nevus_banned()
-        cand = np.flatnonzero(~banned & (tx.source == tx.idx))   # centred on the surface
+        cand = np.flatnonzero(~banned & tx.on_surface)
         tries = 0
         while len(boxes) < self.look.n_nevi and tries < 20 * max(self.look.n_nevi, 1) and len(cand):
             tries += 1
