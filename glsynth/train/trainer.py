@@ -175,9 +175,12 @@ class WeightAverage:
     ramps up as ``min(decay, (1 + step) / (10 + step))`` so that early averages are not
     dominated by the random initial weights."""
 
-    def __init__(self, model, decay: float):
+    def __init__(self, model, decay: float, state=None):
+        """Start from ``state`` (a state dict, e.g. a checkpoint's average) or else from
+        the model's current weights."""
         self.decay = float(decay)
-        self.state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        start = model.state_dict() if state is None else state
+        self.state = {k: v.detach().clone() for k, v in start.items()}
 
     @torch.no_grad()
     def update(self, model, step: int):
@@ -298,8 +301,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
     if ck is not None:
         model.load_state_dict(ck.get("train_model", ck["model"]))
         if ema:
-            average = WeightAverage(model, ema)
-            average.state = {k: v.clone() for k, v in ck["model"].items()}
+            average = WeightAverage(model, ema, state=ck["model"])
         opt.load_state_dict(ck["optimizer"])
         epoch, pos, step, history = ck["epoch"], ck["batch_in_epoch"], ck["step"], ck["history"]
         val_history, best = ck.get("val_history", []), ck.get("best")
