@@ -527,12 +527,14 @@ class _Painter:
         blotch = tx.interp(nz.fbm(self.v + 3.0, 50.0, 2))
         # How blotchy redness is varies between people far more than one amplitude
         # allows (vascular reactivity, sun damage, cold limbs): the factor `uneven`
-        # (0.6-3.4x) scales the redness that blood adds, never taking any away (skin with
-        # less blood than its base colour turns olive, not green)
-        uneven = 0.6 + 2.8 * self.look.blotchy
+        # (0.6-2.0x) scales the redness that blood adds, never taking any away (skin with
+        # less blood than its base colour turns olive, not green). Like all blood it shows
+        # less through more melanin (`vis`): at 3.4x, and unscaled, the top of the range
+        # read as a pink rash on Fitzpatrick V-VI bodies
+        uneven = 0.6 + 1.4 * self.look.blotchy
         L = L0 + 4.0 * low + 3.0 * mid
-        a = (a0 + 3.0 * hue + 1.5 * mid + 3.0 * (uneven - 1.0) * np.clip(hue, 0, None)
-             + 6.0 * uneven * vis * np.clip(blotch, 0, None))
+        a = (a0 + 3.0 * hue + 1.5 * mid
+             + vis * (3.0 * (uneven - 1.0) * np.clip(hue, 0, None) + 6.0 * uneven * np.clip(blotch, 0, None)))
         b = b0 + 1.5 * low - 1.2 * hue
         # mottling at the scale of millimetres (per texel): uneven melanin and the
         # superficial vascular plexus showing through, what makes real skin up close
