@@ -1,0 +1,113 @@
+"""How healthy skin's colour varies over centimetres, in glsynth output against real photographs.
+
+Per image, at 512 px on the shorter side, over healthy skin (glsynth: semantic label 1;
+Fitzpatrick17k layout: neither lesion nor non-skin, kept 12 px from the lesion): CIELAB is
+smoothed with a mask-normalised Gaussian (sigma 3% of the shorter side, so pores, hair and
+noise drop out) and the spread of each channel is measured: the standard deviation of L*
+divided by mean L* and the standard deviations of a* and b*. Also per image with a lesion,
+its contrast: CIEDE76 between the mean Lab inside the lesion (eroded 3 px) and that of the
+healthy skin 12-40 px outside it. Printed are the 10th / 50th / 90th percentiles over
+images, and the mean skin colour, for each folder.
+
+    python tools/skin_color_stats.py OUT_DIR [OUT_DIR ...] --real ../shared/realdev/fitz17k
+"""
+import argparse
+import glob
+import os
+
+import cv2
+import numpy as np
+
+REAL_MASKS = ("lesions.png", "nonskin.png", "selected_lesion.png")
+SHORT = 512
+SIGMA = 0.03 * SHORT
+
+
+def spread(img_bgr, skin):
+    """(L std / L mean, a std, b std, L mean, a mean, b mean) of the smoothed skin, or None."""
+    lab = cv2.cvtColor(img_bgr.astype(np.float32) / 255.0, cv2.COLOR_BGR2LAB)
+    m = skin.astype(np.float32)
+    den = cv2.GaussianBlur(m, (0, 0), SIGMA)
+    keep = (cv2.erode(skin.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0) & (den > 0.5)
+    if keep.sum() < 2000:
+        return None
+    smooth = [cv2.GaussianBlur(lab[..., c] * m, (0, 0), SIGMA)[keep] / den[keep] for c in range(3)]
+    L, a, b = smooth
+    return (float(L.std() / max(L.mean(), 1.0)), float(a.std()), float(b.std()),
+            float(L.mean()), float(a.mean()), float(b.mean()))
+
+
+def contrast(img_bgr, lesion, skin):
+    """CIEDE76 between the lesion's mean Lab and the ring of skin 12-40 px outside it, or None."""
+    lab = cv2.cvtColor(img_bgr.astype(np.float32) / 255.0, cv2.COLOR_BGR2LAB)
+    inside = cv2.erode(lesion.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    grow = lambda r: cv2.dilate(lesion.astype(np.uint8), np.ones((2 * r + 1,) * 2, np.uint8)) > 0  # noqa: E731
+    ring = grow(40) & ~grow(12) & skin
+    if inside.sum() < 50 or ring.sum() < 200:
+        return None
+    return float(np.linalg.norm(lab[inside].mean(0) - lab[ring].mean(0)))
+
+
+def _resized(img, *masks):
+    h, w = masks[0].shape
+    s = SHORT / min(h, w)
+    size = (round(w * s), round(h * s))
+    return (cv2.resize(img, size, interpolation=cv2.INTER_AREA),
+            *(cv2.resize(m.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0 for m in masks))
+
+
+def synthetic(folder):
+    out = []
+    for f in sorted(glob.glob(os.path.join(folder, "images", "*.png"))):
+        sid = os.path.basename(f)[:-4]
+        sem = cv2.imread(os.path.join(folder, "targets", f"{sid}_semantic.png"), cv2.IMREAD_GRAYSCALE)
+        if sem is None:
+            raise SystemExit(f"{folder}: no semantic target for {sid}")
+        img, skin, lesion = _resized(cv2.imread(f), sem == 1, sem == 2)
+        out.append((spread(img, skin), contrast(img, lesion, skin)))
+    return out
+
+
+def real(folder):
+    out = []
+    for sub in sorted(os.listdir(folder)):
+        p = os.path.join(folder, sub)
+        names = [x for x in os.listdir(p) if x.lower().endswith((".jpg", ".jpeg", ".png"))
+                 and x not in REAL_MASKS] if os.path.isdir(p) else []
+        if not names:
+            continue
+        im = cv2.imread(os.path.join(p, names[0]))
+        les = cv2.imread(os.path.join(p, "lesions.png"), cv2.IMREAD_GRAYSCALE) > 0
+        ns = cv2.imread(os.path.join(p, "nonskin.png"), cv2.IMREAD_GRAYSCALE) > 0
+        near = cv2.dilate(les.astype(np.uint8), np.ones((25, 25), np.uint8)) > 0
+        img, healthy, lesion, skin = _resized(im, ~near & ~ns, les, ~les & ~ns)
+        out.append((spread(img, healthy), contrast(img, lesion, skin)))
+    return out
+
+
+def report(name, rows):
+    spreads = [s for s, _ in rows if s is not None]
+    if not spreads:
+        print(f"{name}: no image with enough healthy skin")
+        return
+    v = np.array(spreads)
+    pct = lambda x: "/".join(f"{y:.3g}" for y in np.percentile(x, [10, 50, 90]))  # noqa: E731
+    dE = [c for _, c in rows if c is not None]
+    print(f"{name} ({len(v)} images): L std/mean {pct(v[:, 0])}  a* std {pct(v[:, 1])}  "
+          f"b* std {pct(v[:, 2])}  mean Lab {v[:, 3].mean():.1f} {v[:, 4].mean():.1f} "
+          f"{v[:, 5].mean():.1f}  lesion dE ({len(dE)}) {pct(dE) if dE else '-'}")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("outputs", nargs="*", help="glsynth output folders")
+    ap.add_argument("--real", action="append", default=[], help="folder in the Fitzpatrick17k layout")
+    args = ap.parse_args()
+    for r in args.real:
+        report(r, real(r))
+    for o in args.outputs:
+        report(o, synthetic(o))
+
+
+if __name__ == "__main__":
+    main()
