@@ -32,7 +32,7 @@ SHADINGS = ("phong", "skin")
 FRAMINGS = ("wild", "closeup", "regional")
 FEATURES = ("auto", "vgg16", "filters")
 OVERLAPS = ("lesion", "dilated")
-LIGHT_POSITIONS = ("near_camera", "paper")
+LIGHT_POSITIONS = ("room", "near_camera", "paper")
 
 
 # ---- how a key is declared --------------------------------------------------------------
@@ -241,20 +241,26 @@ class ViewsConfig:
                           within=between(0, 1))
     min_lesion: float = key(0.0, "views showing a smaller share of lesion are rejected",
                             within=between(0, 1))
-    ambient: list = key([0.2, 0.99], "room light: ambient intensity", pair=_LIGHT)
+    ambient: list = key([0.1, 0.6], "room light: ambient intensity", pair=_LIGHT)
     ambient_ground: list = key([0.25, 0.7], "room light: ambient reaching a surface facing the floor, "
                                "relative to one facing the ceiling (1: even, the paper's)",
                                pair=between(0, 1))
-    diffuse: list = key([0.2, 0.99], "room light: diffuse intensity", pair=_LIGHT)
+    diffuse: list = key([0.4, 1.0], "room light: diffuse intensity", pair=_LIGHT)
     specular: list = key([0.0, 0.1], "room light: specular intensity", pair=_LIGHT)
     material_specular: list = key([0.0, 0.05], "phong: material specular", pair=_LIGHT)
     shininess: list = key([30.0, 60.0], "phong: material shininess", pair=between(1e-3, 1e4))
-    light_offset: list = key([0.0, 0.5], "room light: distance from the camera (m)",
-                             pair=between(0, 1e3))
-    light_position: str = key("near_camera", "near_camera: light_offset away in a random direction, "
-                              "views with a blocked light rejected; paper: DermSynth3D's, light_offset "
-                              "per axis away from the point, at the camera when blocked",
+    light_position: str = key("room", "room: light_distance from the viewed point, light_angle "
+                              "away from the camera's direction, more often above than below; "
+                              "near_camera: light_offset from the camera in a random direction (both "
+                              "reject views whose light is blocked); paper: DermSynth3D's, "
+                              "light_offset per axis away from the point, at the camera when blocked",
                               choices=LIGHT_POSITIONS)
+    light_angle: list = key([0.0, 70.0], "room: angle between the light and the camera as seen from "
+                            "the viewed point (degrees)", pair=between(0, 90))
+    light_distance: list = key([0.4, 2.5], "room: light distance from the viewed point (m)",
+                               pair=between(1e-3, 1e3))
+    light_offset: list = key([0.0, 0.5], "near_camera, paper: light distance from the camera (m)",
+                             pair=between(0, 1e3))
     attempts: int = key(50, "scenes tried per view before it is skipped", within=at_least(1))
     wrap: list = key([0.0, 0.4], "wrap diffuse lighting (skin-like light bleeding; 0: Lambert)",
                      pair=between(0, 1))
@@ -263,8 +269,11 @@ class ViewsConfig:
     shadows: bool = key(True, "soft shadows from the room light (shadow map); the paper has none")
     falloff: bool = key(True, "room light and flash fall off with the inverse square of the "
                         "distance, as sampled at the viewed point; the paper's do not")
-    flash_diffuse: list = key([0.2, 0.6], "flash: diffuse intensity", pair=_LIGHT)
+    flash_diffuse: list = key([0.3, 1.0], "flash: diffuse intensity", pair=_LIGHT)
     flash_specular: list = key([0.0, 0.1], "flash: specular intensity", pair=_LIGHT)
+    flash_room: list = key([0.3, 1.0], "flash: the room light's intensity when the flash fires, "
+                           "relative to its own draw (the camera exposes for the flash)",
+                           pair=between(0, 1))
     ambient_tint: float = key(0.5, "tint the ambient light by the background's mean colour (0: none)",
                               within=between(0, 1))
     shading: str = key("skin", "skin: linear-light skin reflectance with micro-relief and hair "

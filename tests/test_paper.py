@@ -136,3 +136,40 @@ def test_paper_light_placement(renderer):
         # light - eye is along +-x, +-y only where the camera is off the point in x, y
         assert np.allclose((light - eye)[:2], 0) and light[2] < w + 0.5
     assert at_camera and moved
+
+
+def test_room_light_placement(renderer):
+    """The default room light sits light_distance from the viewed point, light_angle off
+    the camera's direction about it, above the point (+Y) more often than below; a light
+    the body blocks rejects the scene. When the flash fires the room light is dimmed by a
+    flash_room draw, never brightened."""
+    rng0 = np.random.default_rng(1)
+    mesh = plane(rng0, size=1.0)
+    body = SimpleNamespace(mesh=mesh)
+    v = dataclasses.replace(load_config().views, size=64, w=[0.3, 0.6], framing={"wild": 1.0},
+                            light_angle=[10.0, 60.0], light_distance=[0.5, 2.0],
+                            flash=0.5, flash_room=[0.3, 0.6])
+    above = below = blocked = flashed = 0
+    for seed in range(60):
+        rng = np.random.default_rng(seed)
+        try:
+            scene = V.sample_scene(body, [], rng, v, renderer)
+        except V.ViewRejected as e:
+            blocked += e.reason is V.Rejection.LIGHT_BLOCKED
+            continue
+        point, eye = scene.point, np.asarray(scene.camera.eye)
+        to_light = np.asarray(scene.light.position) - point
+        r = np.linalg.norm(to_light)
+        assert 0.5 - 1e-9 <= r <= 2.0 + 1e-9
+        cos = to_light @ (eye - point) / (r * np.linalg.norm(eye - point))
+        assert np.cos(np.radians(60.0)) - 1e-9 <= cos <= np.cos(np.radians(10.0)) + 1e-9
+        # with fall-off the light is as drawn at the point: its distance is the point's
+        assert scene.light.falloff_distance == pytest.approx(r)
+        above += to_light[1] > 0
+        below += to_light[1] < 0
+        if scene.flash is not None:
+            flashed += 1
+            assert scene.light.diffuse[0] <= 0.6 * v.diffuse[1] + 1e-12
+    assert above > 2 * below and flashed
+    # the plane (normal +Z) blocks nothing in front of it: a light drawn behind it would be
+    assert blocked == 0

@@ -8,6 +8,8 @@ layers below; ``render_view`` renders only the passes the requested outputs need
 """
 from __future__ import annotations
 
+import dataclasses
+
 import enum
 from dataclasses import dataclass
 
@@ -192,6 +194,20 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
         # the camera's side of the point; a light the body blocks goes to the camera
         light_pos = eye + np.sign(eye - point) * rng.uniform(*v.light_offset, size=3)
         light_pos = light_pos if sees(light_pos) else eye
+    elif v.light_position == "room":
+        # a ceiling lamp or a window: turned light_angle away from the camera about the
+        # point, towards a direction that leans up (+Y) more often than down, so the light
+        # grazes curved skin and the frame shades across as a room-lit photograph does
+        to_eye = (eye - point) / np.linalg.norm(eye - point)
+        lean = rng.normal(size=3) + np.array([0.0, 1.5, 0.0])
+        lean -= to_eye * (lean @ to_eye)
+        if np.linalg.norm(lean) < 1e-9:
+            lean = np.cross(to_eye, [1.0, 0.0, 0.0])
+        lean /= np.linalg.norm(lean)
+        angle = np.radians(rng.uniform(*v.light_angle))
+        light_pos = point + rng.uniform(*v.light_distance) * (np.cos(angle) * to_eye + np.sin(angle) * lean)
+        if not sees(light_pos):
+            raise ViewRejected(Rejection.LIGHT_BLOCKED)
     else:
         # light near the camera, in a random direction, unblocked on its way to the point
         direction = rng.normal(size=3)
@@ -227,6 +243,12 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
         # a phone flash sits next to the lens: no ambient, the camera sees what it lights
         flash = PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(*v.flash_diffuse),
                            specular=rng.uniform(*v.flash_specular), falloff_distance=at_point(eye))
+        if v.flash_room != [1.0, 1.0]:
+            # the camera exposes for its flash: the room light counts for less
+            k = float(rng.uniform(*v.flash_room))
+            light = dataclasses.replace(light, ambient=tuple(k * np.asarray(light.ambient)),
+                                        diffuse=tuple(k * np.asarray(light.diffuse)),
+                                        specular=tuple(k * np.asarray(light.specular)))
     return ViewScene(cam, light, material, centre, flash, point=np.asarray(point, np.float64),
                      framing=framing)
 
