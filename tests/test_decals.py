@@ -164,3 +164,26 @@ def test_condition_decal_hides_the_texture_copy_of_its_outline(rng):
     # (without the widened coverage: up to 25-70 levels darker next to the outline)
     assert diff_[band].mean() < 0.1 / 255 and diff_[band].max() <= 1 / 255, \
         (diff_[band].mean() * 255, diff_[band].max() * 255)
+
+
+def test_a_condition_records_the_skin_type_it_is_drawn_on(rng):
+    """A procedural condition is drawn on the body's own skin, not on the reference swatch
+    it was made on: its placement (and so each view's lesion record) gives the body's
+    Fitzpatrick type, and the swatch's as reference_fitzpatrick."""
+    from glsynth.assets.lesions import ProceduralLesions
+    from glsynth.pipeline.bodies import TexelGeometry
+    from glsynth.pipeline.paste import PasteSettings, paste_lesions
+    from shapes import skin_sheet
+
+    reference = int(rng.integers(1, 7))
+    own = reference % 6 + 1
+    with gs.Renderer(128, 128) as r:
+        body = skin_sheet(rng, tex=256, amplitude=10)
+        body.meta = {"fitzpatrick": own}
+        tx = TexelGeometry.of(r, body.mesh)
+        lesion = ProceduralLesions(1, seed=int(rng.integers(1000)), size=64, fitzpatrick=reference)[0]
+        settings = PasteSettings(view_size=128, w=(0.05, 0.06), size=(0.3, 0.5), max_depth_change=0.05)
+        pasted = paste_lesions(r, body, tx, [lesion], settings, ("skin type",), int(rng.integers(1000)))
+    meta = pasted.placements[0].lesion_meta
+    assert lesion.meta["fitzpatrick"] == reference
+    assert meta["fitzpatrick"] == own and meta["reference_fitzpatrick"] == reference

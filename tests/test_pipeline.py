@@ -80,6 +80,9 @@ def test_every_sample_is_consistent(dataset):
             ys, xs = np.nonzero(inst == l["instance"])
             assert l["box"] == [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
             assert l["area"] == len(xs)
+            if "preset" in l["source"]:   # a procedural condition, drawn on this body's skin
+                assert l["source"]["fitzpatrick"] == meta["body"]["fitzpatrick"]
+                assert l["source"]["reference_fitzpatrick"] in range(1, 7)
         assert (meta["fractions"]["skin"]) >= 0.1
         for key in ("eye", "target", "up", "fov_deg", "w", "point", "normal", "intrinsics"):
             assert key in meta["camera"]

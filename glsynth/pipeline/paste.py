@@ -266,7 +266,13 @@ class Paster:
                 continue
             rows, cols = np.nonzero(mask)
             t_rows, t_cols = np.nonzero(np.isin(self.result.instances, ids))
-            p = Placement(k, lesion.id, _jsonable(lesion.meta), cam.to_dict(), flip_h, flip_v, angle,
+            meta = _jsonable(lesion.meta)
+            if fields is not None and "fitzpatrick" in meta:
+                # the condition is drawn on this body's skin, not on the swatch it was
+                # previewed on: the record's skin type is the body's
+                meta["reference_fitzpatrick"] = meta["fitzpatrick"]
+                meta["fitzpatrick"] = (getattr(self.body, "meta", None) or {}).get("fitzpatrick")
+            p = Placement(k, lesion.id, meta, cam.to_dict(), flip_h, flip_v, angle,
                           float(scale), float(c), attempt,
                           [int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1],
                           [int(t_cols.min()), int(t_rows.min()), int(t_cols.max()) + 1, int(t_rows.max()) + 1],
