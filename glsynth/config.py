@@ -325,6 +325,10 @@ class PhotoConfig:
     exposure: list = key([-0.3, 0.3], "exposure error (EV, stops)", pair=between(-4, 4))
     vignetting: list = key([0.0, 0.25], "relative light fall-off at the corners", pair=between(0, 1))
     chromatic_aberration: list = key([0.0, 0.6], "R/B shift at the corners (px)", pair=between(0, 16))
+    contrast: list = key([0.0, 0.4], "the phone's S tone curve on the sRGB image: (1 - c) x + c "
+                         "smoothstep(x), mid-tone slope 1 + c/2", pair=between(0, 1))
+    saturation: list = key([0.0, 0.2], "the phone's chroma boost: chroma times 1 + s about each "
+                           "pixel's luma", pair=between(0, 1))
     jpeg_quality: list = key([70, 95], "JPEG quality ([0, 0]: no JPEG)", pair=between(0, 100),
                              rule=Rule(_jpeg_quality, "[0, 0] or integers in [1, 100]"))
 

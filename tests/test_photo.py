@@ -21,7 +21,7 @@ RANGES = {"defocus": ("aperture", [0.002, 0.003]), "motion_blur": ("motion_blur"
           "chromatic_aberration": ("chromatic_aberration", [1.0, 2.0]),
           "vignetting": ("vignetting", [0.2, 0.4]), "exposure": ("exposure", [0.3, 0.6]),
           "noise": ("shot_noise", [0.002, 0.004]), "white_balance": ("white_balance", [0.1, 0.2]),
-          "jpeg": ("jpeg_quality", [70, 90])}
+          "tone": ("contrast", [0.2, 0.4]), "jpeg": ("jpeg_quality", [70, 90])}
 
 
 def _scene(rng, h=96, w=128):
@@ -78,6 +78,29 @@ def test_parameters_recorded_and_reproducible(rng):
     assert np.array_equal(photo.apply(img, a, depth), photo.apply(img, recorded, depth))
     for name, params in a["effects"].items():
         assert all(np.isfinite(v).all() for v in params.values()), name
+
+
+def test_tone_is_the_s_curve_and_the_chroma_boost(rng):
+    """Against a float reference: each channel through (1 - c) x + c x^2 (3 - 2x), then
+    chroma scaled by 1 + s about the Rec. 601 luma; within rounding (the table rounds
+    before the matrix). Greys stay grey, black, mid-grey and white stay put, mid-tones
+    gain contrast, and saturation alone is an effect of its own."""
+    img, _ = _scene(rng)
+    c, s = rng.uniform(0.1, 0.5), rng.uniform(0.05, 0.3)
+    x = img.astype(np.float64) / 255
+    ref = 255 * ((1 - c) * x + c * x * x * (3 - 2 * x))
+    luma = ref @ np.array([0.299, 0.587, 0.114])
+    ref = np.clip(luma[..., None] + (1 + s) * (ref - luma[..., None]), 0, 255)
+    out = photo.tone(img, c, s)
+    assert out.dtype == np.uint8 and np.abs(out - ref).max() <= 1.5
+    greys = np.repeat(np.array([0, 64, 128, 192, 255], np.uint8)[:, None, None], 3, -1)
+    g = photo.tone(greys, c, s)[:, 0]
+    assert (g == g[:, :1]).all() and g[0, 0] == 0 and g[4, 0] == 255 and abs(int(g[2, 0]) - 128) <= 1
+    assert g[3, 0] > 192 and g[1, 0] < 64
+    p = photo.sample_params(_cfg(saturation=[0.1, 0.2]), rng_for(1, "photo", 0, 0), 0.5, 1000.0)
+    assert list(p["effects"]) == ["tone"] and p["effects"]["tone"]["contrast"] == 0
+    chroma = lambda im: float(np.abs(im.astype(np.float64) - (im @ photo.LUMA)[..., None]).mean())  # noqa: E731
+    assert chroma(photo.apply(img, p)) > chroma(img) * 1.05
 
 
 def _local_contrast(gray):

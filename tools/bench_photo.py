@@ -31,7 +31,8 @@ from glsynth.pipeline import generate
 # effect -> (config key, sampled params key) for the "one effect at strength t" rows
 KEYS = {"defocus": "aperture", "motion_blur": "motion_blur", "chromatic_aberration": "chromatic_aberration",
         "vignetting": "vignetting", "exposure": "exposure", "noise": ("shot_noise", "read_noise"),
-        "white_balance": ("white_balance", "tint"), "jpeg": "jpeg_quality"}
+        "white_balance": ("white_balance", "tint"), "tone": ("contrast", "saturation"),
+        "jpeg": "jpeg_quality"}
 
 
 def _scaled(pc, effects, t):
@@ -48,7 +49,8 @@ def _scaled(pc, effects, t):
                 setattr(out, key, [q, q])
             else:
                 top = hi if abs(hi) >= abs(lo) else lo
-                setattr(out, key, [top * t, top * t])
+                v = min(top * t, 1.0) if key in ("contrast", "saturation") else top * t  # S curve: c <= 1
+                setattr(out, key, [v, v])
     out.focus_jitter = 0.0
     out.enabled = True
     return out

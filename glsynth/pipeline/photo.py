@@ -26,7 +26,11 @@ Order (the order light takes through a camera), each step optional:
 8. white balance / colour temperature: channel gains ``R 2^(t/2)``, ``B 2^(-t/2)``,
    ``G 2^g`` (``t`` warm/cool, ``g`` green/magenta tint)
 9. linear -> sRGB, rounded to 8 bits
-10. JPEG at the sampled quality (OpenCV encode + decode)
+10. tone: the phone's rendering of its sRGB image, an S curve
+    ``(1 - c) x + c x^2 (3 - 2 x)`` (mid-tones steeper by ``c / 2``, black, mid-grey and
+    white fixed) and chroma scaled by ``1 + s`` about each pixel's luma (Rec. 601
+    weights: grey stays grey)
+11. JPEG at the sampled quality (OpenCV encode + decode)
 
 An effect whose strength is zero is skipped entirely, so with every strength at zero the
 image is returned unchanged (bit-exact). Parameters are drawn by ``sample_params`` from
@@ -45,7 +49,8 @@ import numpy as np
 
 LINEAR_EFFECTS = ("defocus", "motion_blur", "chromatic_aberration", "vignetting", "exposure",
                   "noise", "white_balance")
-EFFECTS = LINEAR_EFFECTS + ("jpeg",)
+EFFECTS = LINEAR_EFFECTS + ("tone", "jpeg")
+LUMA = np.array([0.299, 0.587, 0.114], np.float32)   # Rec. 601, as JPEG's YCbCr
 
 # sRGB <-> linear look-up tables (the sRGB transfer function, IEC 61966-2-1)
 _S = np.arange(256, dtype=np.float64) / 255
@@ -101,6 +106,7 @@ def sample_params(pc, rng, focus_distance: float, focal_px: float = 1.0) -> dict
     ca = _u(rng, pc.chromatic_aberration)
     q_lo, q_hi = int(pc.jpeg_quality[0]), int(pc.jpeg_quality[1])
     quality = int(rng.integers(q_lo, q_hi + 1)) if q_hi > 0 else 0
+    contrast, saturation = _u(rng, pc.contrast), _u(rng, pc.saturation)
     fx = {}
     if aperture > 0:
         fx["defocus"] = {"aperture": aperture, "focal_px": float(focal_px),
@@ -119,6 +125,8 @@ def sample_params(pc, rng, focus_distance: float, focal_px: float = 1.0) -> dict
     if wb != 0 or tint != 0:
         fx["white_balance"] = {"temperature": wb, "tint": tint,
                                "gains": [2 ** (wb / 2), 2 ** tint, 2 ** (-wb / 2)]}
+    if contrast > 0 or saturation > 0:
+        fx["tone"] = {"contrast": contrast, "saturation": saturation}
     if quality > 0:
         fx["jpeg"] = {"quality": quality}
     return {"enabled": True, "effects": fx, "order": [e for e in EFFECTS if e in fx]}
@@ -247,6 +255,24 @@ def add_noise(lin, shot, read, seed):
     return np.clip(normal, 0, 1, out=normal)
 
 
+def tone_curve(contrast):
+    """The S curve of strength ``contrast`` as a 256-entry table of 8-bit values."""
+    x = np.arange(256, dtype=np.float64) / 255
+    return np.rint(255 * ((1 - contrast) * x + contrast * x * x * (3 - 2 * x))).astype(np.uint8)
+
+
+def tone(img_u8, contrast, saturation):
+    """The phone's tone curve and chroma boost on an 8-bit sRGB image (a new array): a
+    table look-up, then one 3x3 colour matrix, ``(1 + s) I - s 1 LUMA`` (rounded and
+    clipped by OpenCV)."""
+    img = np.ascontiguousarray(img_u8)
+    out = cv2.LUT(img, tone_curve(contrast).reshape(256, 1)).reshape(img.shape) if contrast > 0 else img
+    if saturation > 0:
+        m = (1 + saturation) * np.eye(3) - saturation * np.outer(np.ones(3), LUMA)
+        out = cv2.transform(out.reshape(-1, 1, 3), m.astype(np.float32)).reshape(img.shape)
+    return out
+
+
 def jpeg(img_u8, quality):
     ok, buf = cv2.imencode(".jpg", img_u8[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
@@ -285,6 +311,8 @@ def apply(image: np.ndarray, params: dict, depth: np.ndarray | None = None) -> n
             lin = add_noise(lin, p["shot"], p["read"], p["seed"])
         # white balance: gains after the sensor, applied by the sRGB encoding
         img = linear_to_srgb8(lin, fx["white_balance"]["gains"] if "white_balance" in fx else None)
+    if "tone" in fx:
+        img = tone(img, fx["tone"]["contrast"], fx["tone"]["saturation"])
     if "jpeg" in fx:
         img = jpeg(img, fx["jpeg"]["quality"])
     return img
