@@ -610,6 +610,22 @@ def _porokeratosis(b, rng, R):
     return {"scale_rgb": (150, 118, 90), "arrangement": "widespread"}
 
 
+def _pigmented_patch(b, rng, R):
+    """A flat brown patch (cafe-au-lait macule, Becker naevus, post-inflammatory
+    hyperpigmentation): evenly light to mid brown with faint mottling, sharply bordered,
+    its outline smooth (the 'coast of California') or jagged (the 'coast of Maine'), the
+    skin's markings and texture unchanged. Large and flat, the kind of lesion a model
+    that only knows small dark ones takes for skin."""
+    c = b.c
+    jagged = rng.random() < 0.4
+    sd = c.shape("round", R, aspect=rng.uniform(0.5, 0.95), irregular=0.35 if jagged else 0.08,
+                 warp=0.2 if jagged else 0.06)
+    w = b.weight(sd, R * 0.06)
+    b.f["melanin_add"] += w * rng.uniform(0.03, 0.14) * (1 + 0.12 * c.noise(max(0.8, R / 6), 2))
+    b.outline(w, 0.35)
+    return {"border": "jagged" if jagged else "smooth"}
+
+
 # preset -> (builder, size range in mm (the condition's extent), where it usually is)
 PRESETS = {
     "nevus": (_nevus, (2.5, 9.0)),
@@ -630,6 +646,7 @@ PRESETS = {
     "purpura": (_purpura, (10.0, 90.0)),
     "morphea": (_morphea, (20.0, 120.0)),
     "porokeratosis": (_porokeratosis, (30.0, 120.0)),
+    "pigmented_patch": (_pigmented_patch, (15.0, 150.0)),
 }
 
 
