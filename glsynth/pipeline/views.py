@@ -8,10 +8,8 @@ layers below; ``render_view`` renders only the passes the requested outputs need
 """
 from __future__ import annotations
 
-import dataclasses
-
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -246,9 +244,9 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
         if v.flash_room != [1.0, 1.0]:
             # the camera exposes for its flash: the room light counts for less
             k = float(rng.uniform(*v.flash_room))
-            light = dataclasses.replace(light, ambient=tuple(k * np.asarray(light.ambient)),
-                                        diffuse=tuple(k * np.asarray(light.diffuse)),
-                                        specular=tuple(k * np.asarray(light.specular)))
+            light = replace(light, ambient=tuple(k * np.asarray(light.ambient)),
+                            diffuse=tuple(k * np.asarray(light.diffuse)),
+                            specular=tuple(k * np.asarray(light.specular)))
     return ViewScene(cam, light, material, centre, flash, point=np.asarray(point, np.float64),
                      framing=framing)
 
