@@ -359,6 +359,43 @@ def test_erythema_darkens_more_than_it_reddens_on_dark_skin():
     assert changes[6][0] < 0                                   # and darker
 
 
+def test_kubelka_munk_layer_matches_the_hyperbolic_form(rng):
+    """The one-exponential layer formula equals Kubelka-Munk's sinh/cosh form (evaluated in
+    float64 where it does not overflow), and stays finite and in [0, 1] for thick layers."""
+    from glsynth.assets.chromophores import _km_layer
+    K = np.exp(rng.uniform(np.log(1e-3), np.log(2e4), 5000))
+    S = rng.uniform(5.0, 300.0, 5000)
+    d = np.exp(rng.uniform(np.log(1e-6), np.log(0.05), 5000))
+    b = np.sqrt(((S + K) / S) ** 2 - 1)
+    x = b * S * d
+    ok = x < 300
+    x = np.where(ok, x, 0.0)
+    den = (S + K) / S * np.sinh(x) + b * np.cosh(x)
+    r, t = _km_layer(K.astype(np.float32), S.astype(np.float32), d.astype(np.float32))
+    # float32: within 5e-5 absolute (an 8-bit colour step is 4e-3), 2e-4 relative
+    np.testing.assert_allclose(r[ok], (np.sinh(x) / den)[ok], rtol=2e-4, atol=5e-5)
+    np.testing.assert_allclose(t[ok], (b / den)[ok], rtol=2e-4, atol=5e-5)
+    assert np.isfinite(r).all() and np.isfinite(t).all() and (~ok).any()
+    assert (r >= 0).all() and (r <= 1).all() and (t >= 0).all() and (r + t <= 1 + 1e-5).all()
+    # a vanishing layer is transparent and unreflecting
+    r0, t0 = _km_layer(np.float32(10.0), np.float32(50.0), np.float32(0.0))
+    assert r0 == 0 and t0 == 1
+
+
+def test_skin_colour_is_the_same_in_blocks_and_at_once(rng):
+    """The spectral model works through large fields in blocks; a field's colours do not
+    depend on where the block boundaries fall."""
+    from glsynth.assets import chromophores
+    n = chromophores._BLOCK * 2 + 123
+    params = [rng.uniform(0, 0.4, n), rng.uniform(0, 0.8, n), rng.uniform(0, 1, n),
+              rng.uniform(0, 2, n), rng.uniform(0, 0.2, n), rng.uniform(0, 3, n)]
+    whole = chromophores.linear_rgb(*params)
+    assert whole.shape == (n, 3) and np.isfinite(whole).all()
+    idx = np.sort(rng.choice(n, 200, replace=False))
+    one_by_one = np.stack([chromophores.linear_rgb(*(p[i] for p in params)) for i in idx])
+    np.testing.assert_allclose(whole[idx], one_by_one, atol=1e-6)
+
+
 @pytest.mark.parametrize("fitz", [1, 3, 6])
 def test_reference_skin_lies_in_its_fitzpatrick_band(fitz):
     for les in procedural_lesions(2, seed=5, size=96, kinds=["nevus"], fitzpatrick=fitz):

@@ -87,12 +87,19 @@ def _spectra():
             "weights": weights / white[1], "white": white / white[1]}
 
 
+@lru_cache(maxsize=1)
+def _spectra32():
+    # the spectral model runs in float32: twice as fast as float64, and its rounding
+    # (~1e-7) is far below a colour's 1/255 step
+    return {k: v.astype(np.float32) for k, v in _spectra().items()}
+
+
 def reflectance(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
-    """Diffuse reflectance spectra (..., 31) of skin with these chromophores (arrays
-    broadcast together; volume fractions are clipped to [0, 1])."""
-    sp = _spectra()
+    """Diffuse reflectance spectra (..., 31, float32) of skin with these chromophores
+    (arrays broadcast together; volume fractions are clipped to [0, 1])."""
+    sp = _spectra32()
     melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis = (
-        np.clip(np.asarray(x, np.float64), lo, hi)[..., None] for x, lo, hi in
+        np.clip(np.asarray(x, np.float32), lo, hi)[..., None] for x, lo, hi in
         ((melanin, 0, 1), (blood, 0, 1), (oxygen, 0, 1), (bilirubin, 0, 10),
          (dermal_melanin, 0, 1), (epidermis, 0, 4)))
     mu_epi = melanin * sp["mel"] + (1 - melanin) * sp["base"]
@@ -114,22 +121,37 @@ def reflectance(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, 
 
 def _km_layer(K, S, thickness):
     """Kubelka-Munk reflectance and transmittance of a layer (absorption K, scattering S
-    per cm) of the given thickness over a black background."""
-    sd = S * thickness + 1e-9
-    a = (S + K) / S
-    b = np.sqrt(a * a - 1)
-    den = a * np.sinh(b * sd) + b * np.cosh(b * sd)
-    return np.sinh(b * sd) / den, b / den
+    per cm) of the given thickness over a black background.
+
+    With a = 1 + K/S, b = sqrt(a^2 - 1) and x = b S d, R = sinh x / (a sinh x + b cosh x)
+    and T = b / (the same); multiplied through by 2 exp(-x) they need one exponential and
+    stay finite for any thickness (sinh and cosh overflow in thick, dark layers)."""
+    k = K / S
+    a = 1 + k
+    b = np.sqrt(k * (k + 2))                      # = sqrt(a^2 - 1), exact for small k
+    e = np.exp(-b * (S * thickness))
+    one_minus_e2 = 1 - e * e
+    den = a * one_minus_e2 + b * (2 - one_minus_e2)
+    return one_minus_e2 / den, 2 * b * e / den
+
+
+# pixels per block of the spectral model: its (pixels x 31) temporaries stay in cache
+_BLOCK = 8192
 
 
 def linear_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
     """Linear sRGB (..., 3) of skin with these chromophores, not clipped: a value outside
     [0, 1] is a colour outside sRGB's gamut."""
     sp = _spectra()
-    r = reflectance(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis)
-    xyz = r @ sp["weights"]                                  # (..., 3), white -> sp["white"]
-    xyz = xyz * (_D65 / sp["white"])                        # adapt to the D65 white
-    return xyz @ _XYZ_TO_LINEAR.T
+    params = np.broadcast_arrays(*(np.asarray(x, np.float64) for x in
+                                   (melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis)))
+    shape = params[0].shape
+    flat = [p.reshape(-1) for p in params]
+    to_linear = (sp["weights"] * (_D65 / sp["white"])) @ _XYZ_TO_LINEAR.T   # (31, 3)
+    out = np.empty((flat[0].size, 3))
+    for s in range(0, flat[0].size, _BLOCK):
+        out[s:s + _BLOCK] = reflectance(*(p[s:s + _BLOCK] for p in flat)) @ to_linear
+    return out.reshape(shape + (3,))
 
 
 def skin_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):

@@ -419,11 +419,11 @@ def fractal_noise(rng: np.random.Generator, shape, scale: float, octaves: int = 
 
 def reference_skin(fitzpatrick: int, size: int, rng) -> np.ndarray:
     """A size x size uint8 patch of healthy skin of a Fitzpatrick type from the
-    chromophore model, with gentle mottling."""
-    from .chromophores import skin_rgb
+    chromophore model, with gentle mottling (from the model's table: within 1/255)."""
+    from .chromophores import skin_rgb_fast
     mel = _REFERENCE_MELANIN[int(fitzpatrick)] * np.exp(0.08 * fractal_noise(rng, (size, size), size / 3))
     blood = 0.02 * np.exp(0.25 * fractal_noise(rng, (size, size), size / 4))
-    return np.clip(np.rint(skin_rgb(mel, blood) * 255), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(skin_rgb_fast(mel, blood) * 255), 0, 255).astype(np.uint8)
 
 
 class ProceduralLesions(Sequence):
