@@ -287,7 +287,8 @@ def test_every_preset_on_every_skin_type(preset):
         v = {k: a.reshape(-1) for k, a in f.f.items()}
         lin = linear_rgb(np.clip(mel * v["melanin"] + v["melanin_add"], 0, 1),
                          np.clip(blood * v["blood"] + v["blood_add"], 0, 0.7),
-                         v["oxygen"], v["bilirubin"], v["dermal_melanin"], v["epidermis"])
+                         v["oxygen"], v["bilirubin"], v["dermal_melanin"], v["epidermis"],
+                         v["scatter"])
         assert lin.min() > -0.01 and lin.max() < 1.01, (preset, fitz, lin.min(), lin.max())
         change = np.abs(out.astype(int) - skin.astype(int)).sum(-1)
         assert change[m].mean() > 3 * max(change[~ndimage.binary_dilation(m, iterations=20)].mean(), 0.3) \
@@ -477,3 +478,65 @@ def test_an_erosion_is_raw_red_on_every_skin_type(fitz):
     core, around = w > 0.99, w < 0.01
     assert np.median(lab[core][:, 1]) > np.median(lab[around][:, 1]) + 5
     assert np.median(lab[core][:, 1]) > np.median(pale[core][:, 1]) + 5
+
+
+def test_less_dermal_scattering_deepens_the_red_of_blood():
+    """Collagen-poor, vessel-rich tissue (granulation, a pyogenic granuloma) scatters less:
+    the same blood reads darker and redder than in normal dermis, towards the cherry red of
+    real vascular lesions, which the normal dermis cannot reach at any blood volume."""
+    from glsynth.assets.chromophores import skin_rgb, skin_rgb_fast
+    normal = srgb_to_lab(skin_rgb(0.02, 0.6, 0.8, epidermis=0.0))
+    vascular = srgb_to_lab(skin_rgb(0.02, 0.6, 0.8, epidermis=0.0, scatter=0.2))
+    assert vascular[0] < normal[0] - 8 and vascular[1] > normal[1] + 8
+    full_blood = srgb_to_lab(skin_rgb(0.02, 1.0, 0.8, epidermis=0.0))
+    assert vascular[1] > full_blood[1] + 4
+    # the table path agrees with the exact model where scattering is changed
+    np.testing.assert_allclose(skin_rgb_fast([0.02, 0.02], [0.6, 0.1], 0.8, scatter=[0.2, 1.0]),
+                               skin_rgb([0.02, 0.02], [0.6, 0.1], 0.8, scatter=[0.2, 1.0]), atol=2 / 255)
+
+
+@pytest.mark.parametrize("preset", ["pyogenic_granuloma", "ulcer"])
+def test_vascular_lesions_are_deep_red(preset):
+    """A pyogenic granuloma and an ulcer's granulating bed on fair skin: dark, saturated
+    red (CIELAB a* above 35, L* below 50), not the salmon pink of skin with more blood."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    f = make_condition(preset, [3, 1], size=128)
+    lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 128, np.random.default_rng(0))))
+    core = ndimage.binary_erosion(f.mask, iterations=4) & (f.f["crust"] < 0.05) & (f.f["scale"] < 0.05)
+    assert core.sum() > 50
+    assert np.median(lab[core][:, 1]) > 35 and np.median(lab[core][:, 0]) < 50, np.median(lab[core], 0)
+
+
+def test_old_crust_is_darker_and_uneven():
+    """Crust is not a flat coat of paint: its colour varies across it and darkens where
+    it is thick or old, towards dried blood's brown-red."""
+    from glsynth.assets import morphology as M
+    from glsynth.assets.lesions import reference_skin
+    b = M.Builder(M.Canvas(np.random.default_rng(4), 128, 20.0))
+    w = M.smoothstep(-0.5, 0.5, b.c.shape("round", 8.0, irregular=0.0, warp=0.0))
+    b.crust(w, 1.0, "honey")
+    f = b.fields(20.0)
+    lab = srgb_to_lab(M.apply_to_skin(f, reference_skin(2, 128, np.random.default_rng(0))))
+    crusted = f.f["crust"] > 0.7
+    dark, light = crusted & (f.f["crust_dark"] > 0.5), crusted & (f.f["crust_dark"] < 0.2)
+    assert dark.sum() > 30 and light.sum() > 30
+    assert np.median(lab[dark][:, 0]) < np.median(lab[light][:, 0]) - 10
+    assert lab[crusted][:, 0].std() > 5
+
+
+def test_scale_lies_in_plates_split_by_fissures():
+    """Scale is plates of keratin with fine fissures between them: within a plate the
+    coverage is nearly even, and it drops along the plate edges, where the plaque shows."""
+    from glsynth.assets import morphology as M
+    b = M.Builder(M.Canvas(np.random.default_rng(9), 256, 20.0))
+    w = np.ones((256, 256), np.float32)
+    b.scale(w, 1.0, 1.5)
+    wall, thickness = b._plates(1.5)
+    cover = b.f["scale"]
+    edge, inner = wall < 0.01, wall > 0.2
+    assert cover[edge].mean() < 0.7 * cover[inner].mean()
+    # plates: ~(20 mm / 1.5 mm)^2 of them, each one thickness
+    n_plates = len(np.unique(thickness))
+    assert 100 < n_plates < 300, n_plates
+    assert 0.3 < (cover > 0.2).mean() < 0.95

@@ -94,14 +94,15 @@ def _spectra32():
     return {k: v.astype(np.float32) for k, v in _spectra().items()}
 
 
-def reflectance(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
+def reflectance(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0,
+                scatter=1.0):
     """Diffuse reflectance spectra (..., 31, float32) of skin with these chromophores
     (arrays broadcast together; volume fractions are clipped to [0, 1])."""
     sp = _spectra32()
-    melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis = (
+    melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis, scatter = (
         np.clip(np.asarray(x, np.float32), lo, hi)[..., None] for x, lo, hi in
         ((melanin, 0, 1), (blood, 0, 1), (oxygen, 0, 1), (bilirubin, 0, 10),
-         (dermal_melanin, 0, 1), (epidermis, 0, 4)))
+         (dermal_melanin, 0, 1), (epidermis, 0, 4), (scatter, 0.05, 4)))
     mu_epi = melanin * sp["mel"] + (1 - melanin) * sp["base"]
     mu_blood = oxygen * sp["hbo2"] + (1 - oxygen) * sp["hb"]
     # papillary dermis: the thin, vascular layer under the epidermis that inflammation
@@ -109,9 +110,13 @@ def reflectance(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, 
     mu_pap = (blood * mu_blood + (1 - blood) * sp["base"] + bilirubin * sp["bili"]
               + dermal_melanin * sp["mel"])
     mu_ret = RETICULAR_BLOOD * mu_blood + sp["base"] + bilirubin * sp["bili"]
-    ks = mu_ret / sp["scat"]
+    # ``scatter`` scales the dermis's scattering: tissue with less collagen and more
+    # vessels (granulation tissue, vascular tumours) scatters less, so its blood shows a
+    # deeper red than the same blood in normal dermis
+    scat = sp["scat"] * scatter
+    ks = mu_ret / scat
     r_ret = 1 + ks - np.sqrt(ks * ks + 2 * ks)
-    r_pap, t_pap = _km_layer(2 * mu_pap, 2 * sp["scat"], PAPILLARY_CM)
+    r_pap, t_pap = _km_layer(2 * mu_pap, 2 * scat, PAPILLARY_CM)
     r_derm = r_pap + t_pap * t_pap * r_ret / (1 - r_pap * r_ret)
     # the epidermis: it back-scatters a little (the whitish sheen that keeps skin from
     # looking like dye) and filters what reaches the dermis, twice
@@ -139,12 +144,14 @@ def _km_layer(K, S, thickness):
 _BLOCK = 8192
 
 
-def linear_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
+def linear_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0,
+               scatter=1.0):
     """Linear sRGB (..., 3) of skin with these chromophores, not clipped: a value outside
     [0, 1] is a colour outside sRGB's gamut."""
     sp = _spectra()
     params = np.broadcast_arrays(*(np.asarray(x, np.float64) for x in
-                                   (melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis)))
+                                   (melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis,
+                                    scatter)))
     shape = params[0].shape
     flat = [p.reshape(-1) for p in params]
     to_linear = (sp["weights"] * (_D65 / sp["white"])) @ _XYZ_TO_LINEAR.T   # (31, 3)
@@ -154,9 +161,11 @@ def linear_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, e
     return out.reshape(shape + (3,))
 
 
-def skin_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
+def skin_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0,
+             scatter=1.0):
     """sRGB in [0, 1] (..., 3) of skin with these chromophores."""
-    lin = np.clip(linear_rgb(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis), 0, 1)
+    lin = np.clip(linear_rgb(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis, scatter),
+                  0, 1)
     return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
 
 
@@ -195,21 +204,25 @@ def _trilinear(table, coords, points):
     return out
 
 
-def skin_rgb_fast(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0):
+def skin_rgb_fast(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0,
+                  scatter=1.0):
     """``skin_rgb`` from a look-up table (within ~1/255 of it) where the epidermis is
-    whole and bilirubin and dermal melanin are 0, computed exactly elsewhere."""
-    mel, blood, oxy, bili, dmel, epi = np.broadcast_arrays(
-        *(np.asarray(x, np.float64) for x in (melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis)))
-    shape = mel.shape
-    mel, blood, oxy, bili, dmel, epi = (x.reshape(-1) for x in (mel, blood, oxy, bili, dmel, epi))
+    whole, the dermis scatters as usual and bilirubin and dermal melanin are 0, computed
+    exactly elsewhere."""
+    params = np.broadcast_arrays(*(np.asarray(x, np.float64) for x in
+                                   (melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis,
+                                    scatter)))
+    shape = params[0].shape
+    mel, blood, oxy, bili, dmel, epi, scat = (x.reshape(-1) for x in params)
     table, coords = _lut()
     pts = np.stack([np.log(np.clip(mel, 0, 1) + _LOG_EPS), np.log(np.clip(blood, 0, 0.7) + _LOG_EPS),
                     np.clip(oxy, 0, 1)], 1)
     lin = np.clip(_trilinear(table, coords, pts), 0, 1)
     out = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055).astype(np.float64)
-    exact = (bili > 0) | (dmel > 0) | (blood > 0.7) | (epi != 1)
+    exact = (bili > 0) | (dmel > 0) | (blood > 0.7) | (epi != 1) | (scat != 1)
     if exact.any():
-        out[exact] = skin_rgb(mel[exact], blood[exact], oxy[exact], bili[exact], dmel[exact], epi[exact])
+        out[exact] = skin_rgb(mel[exact], blood[exact], oxy[exact], bili[exact], dmel[exact], epi[exact],
+                              scat[exact])
     return out.reshape(shape + (3,))
 
 

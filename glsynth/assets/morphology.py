@@ -4,7 +4,8 @@ sit on (glsynth.assets.chromophores), not as pictures.
 A condition is a :class:`LesionFields`: on a square grid covering ``extent_mm``, maps of
 what the condition does to the skin: epidermal melanin (a factor and an amount
 added: a naevus's melanocytes make melanin whatever the skin around), blood (a factor
-and an amount added, its oxygen saturation), dermal melanin, bilirubin, how much epidermis
+and an amount added, its oxygen saturation), dermal melanin, bilirubin, the dermis's
+scattering (lower in vascular, collagen-poor tissue, whose red is deeper), how much epidermis
 is left (0 in an erosion or ulcer), coverage by scale and crust of a given colour,
 height (mm: plaques, nodules, ulcers), gloss (moist or tense surfaces), how much of the
 skin's micro-relief shows (0 smooth, 1 normal, 2 lichenified), and the mask a
@@ -41,13 +42,14 @@ from .chromophores import skin_inverse, skin_rgb_fast
 from .colour import lab_to_srgb
 
 FIELDS = ("melanin", "melanin_add", "blood", "blood_add", "oxygen", "dermal_melanin", "bilirubin",
-          "epidermis", "scale", "crust", "height", "gloss", "detail")
+          "scatter", "epidermis", "scale", "crust", "crust_dark", "height", "gloss", "detail")
 NEUTRAL = {"melanin": 1.0, "melanin_add": 0.0, "blood": 1.0, "blood_add": 0.0, "oxygen": 0.75,
-           "dermal_melanin": 0.0,
-           "bilirubin": 0.0, "epidermis": 1.0, "scale": 0.0, "crust": 0.0, "height": 0.0,
+           "dermal_melanin": 0.0, "scatter": 1.0,
+           "bilirubin": 0.0, "epidermis": 1.0, "scale": 0.0, "crust": 0.0, "crust_dark": 0.0, "height": 0.0,
            "gloss": 0.0, "detail": 1.0}
 SCALE_COLOURS = {"white": (236, 232, 226), "silvery": (214, 218, 222), "greasy": (205, 178, 120)}
 CRUST_COLOURS = {"honey": (196, 140, 58), "haemorrhagic": (88, 28, 24), "serous": (170, 120, 70)}
+OLD_CRUST = np.array([72, 36, 26]) / 255.0
 # blood volume fraction added where the epidermis is gone (Builder.erode): about that of
 # a florid erythema (Builder.erythema amount 2.5)
 ERODED_BLOOD = 0.25
@@ -82,6 +84,7 @@ class LesionFields:
                 np.abs(np.log(np.maximum(f["melanin"], 1e-3))) / 0.3, f["melanin_add"] / 0.01,
                 np.abs(f["blood"] - 1) / 0.3,
                 f["blood_add"] / 0.02, f["dermal_melanin"] / 0.005, f["bilirubin"] / 0.05,
+                np.abs(f["scatter"] - 1) / 0.1,
                 np.abs(f["epidermis"] - 1) / 0.3, f["scale"] / 0.05, f["crust"] / 0.05,
                 np.abs(f["height"]) / 0.05, f["gloss"] / 0.1, np.abs(f["detail"] - 1) / 0.2])
             w = np.maximum(np.clip(dev, 0, 1), self.mask).astype(np.float32)
@@ -201,6 +204,7 @@ class Builder:
         self.f = {k: np.full((n, n), v, np.float32) for k, v in NEUTRAL.items()}
         self.mask = np.zeros((n, n), bool)
         self.instances = np.zeros((n, n), np.uint16)
+        self._plate_cache = {}
 
     def weight(self, sd, border, kind="sharp"):
         """Coverage 0..1 from a signed distance: sharp (a pixel or two), ill-defined
@@ -236,25 +240,65 @@ class Builder:
         self.mix("oxygen", w, oxygen)
 
     def scale(self, w, coverage, flake_mm, colour="white"):
+        """Keratin flakes over ``w``: plates about ``flake_mm`` wide (a Voronoi
+        tessellation), split by fine fissures through which the plaque shows. A plate is
+        there or has shed; heavier ``coverage`` keeps more of them (a psoriatic plaque's
+        scale is nearly continuous, light scale lies in scattered flakes), thicker plates
+        are whiter, and their edges lift (height)."""
         c = self.c
-        # flakes: patches of partly translucent keratin split by fine fissures; heavier
-        # scale covers more of the lesion (a psoriatic plaque's is nearly continuous),
-        # light scale lies in scattered flakes
-        lo = 0.5 - 1.5 * coverage
-        flakes = smoothstep(lo, lo + 1.1, c.noise(flake_mm, 3)) * smoothstep(0.02, 0.25, np.abs(c.noise(flake_mm * 0.5, 2)))
-        flakes *= 0.55 + 0.45 * smoothstep(-1, 1, c.noise(flake_mm * 0.25, 1))
-        self.f["scale"] = np.maximum(self.f["scale"], np.clip(w * coverage * flakes, 0, 0.9))
-        self.f["height"] += 0.12 * w * coverage * flakes
+        wall, thickness = self._plates(flake_mm)
+        # not every edge has split: fissures come and go along the plate edges
+        split = smoothstep(-0.6, 0.4, c.noise(flake_mm * 0.8, 2))
+        fissure = 1 - split * (1 - smoothstep(0.015, 0.07, wall))
+        # whole areas of the plaque hold more or less scale, over several flakes
+        keep = coverage * (0.75 + 0.5 * smoothstep(-1.2, 1.2, c.noise(flake_mm * 4, 2)))
+        grain = 0.85 + 0.15 * c.noise(flake_mm * 0.25, 2)
+        # light scale is thin as well as sparse: its flakes are more translucent
+        opacity = (0.4 + 0.45 * thickness) * (0.5 + 0.5 * coverage) * grain
+        plates = smoothstep(0.0, 0.2, keep - (1 - thickness)) * opacity
+        flakes = plates * fissure
+        self.f["scale"] = np.maximum(self.f["scale"], np.clip(w * flakes, 0, 0.92))
+        self.f["height"] += 0.12 * w * flakes * (0.6 + 0.4 * smoothstep(0.3, 0.05, wall))
         self.f["detail"] *= 1 - 0.6 * w * coverage
         return SCALE_COLOURS[colour]
 
+    def _plates(self, flake_mm):
+        """(distance to the nearest plate edge over the plate size, each texel's plate
+        thickness in [0, 1]) of a tessellation into plates ``flake_mm`` wide, made once
+        per size for this condition."""
+        key = round(float(flake_mm), 4)
+        if key not in self._plate_cache:
+            from scipy.spatial import cKDTree
+            c, n = self.c, self.c.size
+            cell = max(flake_mm / c.px, 1.5)                          # grid pixels per plate
+            m = int(min(max((n / cell) ** 2, 4), 40000))
+            sites = c.rng.uniform(0, n, (m, 2))
+            # plate edges are ragged, not straight: the grid is warped by a sixth of a plate
+            yy, xx = np.mgrid[0:n, 0:n] + 0.5
+            warp = 0.15 * cell
+            xx = xx + warp * noise(c.rng, n, cell, 2)
+            yy = yy + warp * noise(c.rng, n, cell, 2)
+            d, i = cKDTree(sites).query(np.stack([xx.ravel(), yy.ravel()], 1), k=2)
+            # distance to the bisector of the two nearest sites: the distance to the edge
+            edge = (d[:, 1] ** 2 - d[:, 0] ** 2) / (2 * np.linalg.norm(sites[i[:, 1]] - sites[i[:, 0]], axis=1)
+                                                     + 1e-9)
+            thick = c.rng.random(m)[i[:, 0]]
+            self._plate_cache[key] = ((edge / cell).reshape(n, n).astype(np.float32),
+                                      thick.reshape(n, n).astype(np.float32))
+        return self._plate_cache[key]
+
     def crust(self, w, coverage, colour="honey"):
+        """Dried exudate over ``w``: lumps whose colour darkens where they are thick or
+        old (``crust_dark``), granular and rough rather than a flat coat of paint."""
         c = self.c
         lumps = smoothstep(-0.3, 0.8, c.noise(c.extent * 0.05, 3))
-        a = np.clip(w * coverage * lumps, 0, 1)
+        grain = c.noise(max(0.12, c.extent * 0.008), 2)
+        a = np.clip(w * coverage * lumps * (0.8 + 0.2 * smoothstep(-1, 1, grain)), 0, 1)
         self.f["crust"] = np.maximum(self.f["crust"], a)
-        self.f["height"] += 0.4 * a
-        self.f["gloss"] = np.maximum(self.f["gloss"], 0.3 * a)
+        dark = np.clip(0.55 * lumps + 0.35 * c.noise(c.extent * 0.03, 2) + 0.15 * grain, 0, 1)
+        self.f["crust_dark"] = np.maximum(self.f["crust_dark"], a * dark)
+        self.f["height"] += 0.4 * a * (0.8 + 0.2 * grain)
+        self.f["gloss"] = np.maximum(self.f["gloss"], 0.3 * a * smoothstep(0.2, 0.9, 1 - dark))
         return CRUST_COLOURS[colour]
 
     def erode(self, w, depth_mm=0.1):
@@ -510,10 +554,16 @@ def _ulcer(b, rng, R):
     b.erythema(w_peri, 1.5)
     b.f["melanin"] *= 1 + 0.8 * w_peri * (1 - bed)                     # periwound darkening
     b.erode(bed, rng.uniform(0.5, 2.0))
+    # granulation tissue: beefy red, a cobblestone of ~1 mm granules, darker and bluer
+    # between them and where the bed is older
     gran = smoothstep(-0.5, 1.0, c.noise(max(0.5, R / 12), 2))
-    b.f["blood_add"] += bed * (0.3 - ERODED_BLOOD + 0.2 * gran)         # beefy granulation
-    b.f["height"] += 0.08 * bed * gran
-    slough = smoothstep(0.2, 1.2, c.noise(R / 2.5, 2)) * bed
+    granules = 1 - smoothstep(0.0, 0.8, np.abs(c.noise(max(0.25, min(1.2, R / 15)), 2)))
+    b.f["blood_add"] += bed * (0.45 - ERODED_BLOOD + 0.1 * gran + 0.15 * granules)
+    b.mix("oxygen", bed * (1 - 0.5 * granules), 0.6)
+    b.mix("scatter", bed, rng.uniform(0.3, 0.6))                         # new vessels, little collagen
+    b.f["height"] += bed * (0.08 * gran + 0.12 * granules)
+    sloughy = rng.uniform(-0.6, 0.8)                                    # how much of the bed
+    slough = smoothstep(sloughy, sloughy + 1.0, c.noise(R / 2.5, 2)) * bed
     b.crust(slough, rng.uniform(0.4, 0.9), "serous")                    # yellow fibrin
     if rng.random() < 0.3:
         eschar = smoothstep(0.8, 1.8, c.noise(R / 2, 2)) * bed
@@ -545,6 +595,8 @@ def _pyogenic_granuloma(b, rng, R):
     w = b.weight(sd, R * 0.08)
     b.erode(w, 0.0)
     b.f["blood_add"] += w * (rng.uniform(0.35, 0.55) - ERODED_BLOOD)
+    # a lobular capillary haemangioma: vessels, little collagen, a cherry to deep red
+    b.mix("scatter", w, rng.uniform(0.15, 0.4))
     b.f["height"] += rng.uniform(1.0, 3.0) * smoothstep(-R * 0.1, R * 0.7, sd)
     b.f["gloss"] = np.maximum(b.f["gloss"], 0.9 * w)
     collar = smoothstep(R * 0.25, 0, np.abs(sd + R * 0.05))
@@ -711,12 +763,15 @@ def apply_to_skin(fields: LesionFields, skin_rgb_uint8: np.ndarray, at=None) -> 
     mel, blood, residual = skin_inverse()(flat)
     model = skin_rgb_fast(np.clip(mel * vals["melanin"] + vals["melanin_add"], 0, 1),
                           np.clip(blood * vals["blood"] + vals["blood_add"], 0, 0.7),
-                     vals["oxygen"],
-                     vals["bilirubin"], vals["dermal_melanin"], vals["epidermis"])
+                          vals["oxygen"], vals["bilirubin"], vals["dermal_melanin"], vals["epidermis"],
+                          vals["scatter"])
     from .colour import srgb_to_lab
     lab = srgb_to_lab(model) + residual * np.clip(vals["epidermis"], 0.3, 1.0)[:, None]
     out = lab_to_srgb(lab)
-    for name, colour in (("scale", fields.scale_rgb), ("crust", fields.crust_rgb)):
+    # thick, old crust darkens towards the brown-red of dried blood and serum
+    old = 0.75 * np.clip(vals["crust_dark"], 0, 1)[:, None]
+    crust = np.asarray(fields.crust_rgb, np.float64) / 255.0 * (1 - old) + OLD_CRUST * old
+    for name, tone in (("scale", np.asarray(fields.scale_rgb, np.float64) / 255.0), ("crust", crust)):
         a = np.clip(vals[name], 0, 1)[:, None]
-        out = out * (1 - a) + (np.asarray(colour, np.float64) / 255.0) * a
+        out = out * (1 - a) + tone * a
     return np.clip(np.rint(out * 255), 0, 255).astype(np.uint8).reshape(shape)
