@@ -1,5 +1,6 @@
 """End-to-end pipeline: labels consistent on every sample, paste round trip, blending
 behaviour, determinism, resume, COCO, config errors."""
+import dataclasses
 import json
 import os
 import signal
@@ -346,3 +347,38 @@ def test_multi_lesion_conditions_give_one_instance_each_with_exact_boxes(tmp_pat
             n_boxes += 1
     assert n_boxes > 6
     assert len(coco["annotations"]) == n_boxes
+
+
+def test_regional_views_frame_the_affected_part_by_its_size(rng):
+    """A regional view frames a body part by its size (the geometric mean of its length
+    and width over views.regional_fill gives the frame width), so a limb fills the frame
+    rather than floating in background; with views.regional_lesion it is the part holding
+    a lesion, centred at the lesion."""
+    from types import SimpleNamespace
+    from glsynth.pipeline import views as V
+    # two flat rectangular parts: 1 (0.4 x 0.1 m, a forearm) and 2 (0.6 x 0.3 m, a trunk)
+    def rect(x0, lx, ly, n=12):
+        xs, ys = np.meshgrid(np.linspace(x0, x0 + lx, n), np.linspace(0, ly, n))
+        return np.c_[xs.ravel(), ys.ravel(), np.zeros(n * n)]
+    verts = np.r_[rect(0.0, 0.4, 0.1), rect(1.0, 0.6, 0.3)]
+    labels = np.r_[np.full(144, 1), np.full(144, 2)]
+    faces = np.array([[a, a + 1, a + 12] for base in (0, 144) for a in range(base, base + 131) if a % 12 < 11])
+    a, b, c = (verts[faces[:, i]] for i in range(3))
+    mesh = SimpleNamespace(vertices=verts, faces=faces, vertex_labels=labels,
+                           vertex_normals=np.tile([0.0, 0.0, 1.0], (len(verts), 1)),
+                           face_areas=0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1))
+    body = SimpleNamespace(mesh=mesh)
+    site_pts = np.array([[0.30, 0.05, 0.0], [0.31, 0.05, 0.0]])
+    site = V.LesionSite(site_pts, np.tile([0.0, 0.0, 1.0], (2, 1)), 1e-4)
+    fill = rng.uniform(0.6, 1.2)
+    v = small_config(f"views.regional_fill=[{fill}, {fill}]", "views.regional_lesion=1").views
+    point, normal, direction, w, centre, fov = V._regional_camera(body, [site], rng, v)
+    assert centre == "lesion 1" and any(np.allclose(point, p) for p in site_pts)
+    np.testing.assert_allclose(w, np.sqrt(0.4 * 0.1) / fill / (2 * np.tan(np.radians(fov) / 2)), rtol=1e-6)
+    # without the lesion preference: a part by area, near its middle, framed by its size
+    v0 = dataclasses.replace(v, regional_lesion=0.0)
+    for _ in range(10):
+        point, _, _, w, centre, fov = V._regional_camera(body, [site], rng, v0)
+        assert centre.startswith("part ")
+        size = np.sqrt(0.4 * 0.1) if centre == "part 1" else np.sqrt(0.6 * 0.3)
+        np.testing.assert_allclose(w, size / fill / (2 * np.tan(np.radians(fov) / 2)), rtol=1e-6)

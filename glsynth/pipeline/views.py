@@ -133,25 +133,40 @@ def _closeup_camera(lesion_sites, rng, v):
     return point, normal, _tilted(normal, rng, v.closeup_tilt), w, f"lesion {k + 1}", fov
 
 
-def _regional_camera(body, rng, v):
-    """A body part filling the frame: its extent along its main axis over the frame
-    width in views.regional_fill, seen along the normal of a point near its middle."""
+def _regional_camera(body, lesion_sites, rng, v):
+    """A body part filling the frame: its size (the geometric mean of its extents along
+    and across its main axis) over the frame width in views.regional_fill, seen along the
+    normal. With probability views.regional_lesion (when the body has lesions) the part
+    is the one holding a lesion, centred near the lesion, as a clinician photographs an
+    affected region; otherwise a part drawn by area, centred near its middle."""
     mesh, labels = body.mesh, body.mesh.vertex_labels
     if labels is None:
         return None
-    parts = [k for k in np.unique(labels) if k > 0]
-    areas = np.array([mesh.face_areas[labels[mesh.faces[:, 0]] == k].sum() for k in parts])
-    k = parts[int(rng.choice(len(parts), p=areas / areas.sum()))]
+    centre = None
+    if lesion_sites and rng.random() < v.regional_lesion:
+        k_site = int(rng.integers(len(lesion_sites)))
+        site = lesion_sites[k_site]
+        j = int(rng.integers(len(site.points)))
+        nearest = int(np.argmin(np.sum((mesh.vertices - site.points[j]) ** 2, axis=1)))
+        if labels[nearest] > 0:
+            k, centre = labels[nearest], f"lesion {k_site + 1}"
+            point, normal = site.points[j], site.normals[j]
+    if centre is None:
+        parts = [k for k in np.unique(labels) if k > 0]
+        areas = np.array([mesh.face_areas[labels[mesh.faces[:, 0]] == k].sum() for k in parts])
+        k = parts[int(rng.choice(len(parts), p=areas / areas.sum()))]
     idx = np.flatnonzero(labels == k)
     pts = mesh.vertices[idx]
     c = pts.mean(0)
-    extent = float(np.ptp((pts - c) @ np.linalg.svd(pts - c, full_matrices=False)[2][0]))
-    near = idx[np.argsort(np.sum((pts - c) ** 2, axis=1))[:max(1, len(idx) // 4)]]
-    i = int(rng.choice(near))
+    axes = np.linalg.svd(pts - c, full_matrices=False)[2]
+    size = float(np.sqrt(np.ptp((pts - c) @ axes[0]) * np.ptp((pts - c) @ axes[1])))
+    if centre is None:
+        near = idx[np.argsort(np.sum((pts - c) ** 2, axis=1))[:max(1, len(idx) // 4)]]
+        i = int(rng.choice(near))
+        point, normal, centre = mesh.vertices[i], mesh.vertex_normals[i], f"part {int(k)}"
     fill = rng.uniform(*v.regional_fill)
-    w = extent / fill / (2 * np.tan(np.radians(v.fov_deg) / 2))
-    normal = mesh.vertex_normals[i]
-    return mesh.vertices[i], normal, normal, float(w), f"part {int(k)}", v.fov_deg
+    w = size / fill / (2 * np.tan(np.radians(v.fov_deg) / 2))
+    return point, normal, normal, float(w), centre, v.fov_deg
 
 
 def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=None) -> ViewScene:
@@ -171,7 +186,7 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
     if framing == "closeup":
         chosen = _closeup_camera(lesion_sites, rng, v)
     elif framing == "regional":
-        chosen = _regional_camera(body, rng, v)
+        chosen = _regional_camera(body, lesion_sites, rng, v)
     if chosen is None:
         framing = "wild"
         chosen = _wild_camera(mesh, lesion_sites, rng, v)
