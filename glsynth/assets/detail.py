@@ -99,10 +99,17 @@ def _cell_walls(rng, size, cell_px, stretch):
     scale = np.array([1.0 / stretch, 1.0])
     tiled = (sites[None] + shifts[:, None]).reshape(-1, 2) * scale
     yy, xx = np.mgrid[0:size, 0:size] + 0.5
-    d, i = cKDTree(tiled).query(np.stack([xx.ravel(), yy.ravel()], 1) * scale, k=2)
-    # distance to the bisector of the two nearest sites: exactly the distance to the wall
-    wall = (d[:, 1] ** 2 - d[:, 0] ** 2) / (2 * np.linalg.norm(tiled[i[:, 1]] - tiled[i[:, 0]], axis=1))
-    return wall.reshape(size, size).astype(np.float32), (i[:, 0] % n).reshape(size, size)
+    wall, i = voronoi_walls(tiled, np.stack([xx.ravel(), yy.ravel()], 1) * scale)
+    return wall.reshape(size, size).astype(np.float32), (i % n).reshape(size, size)
+
+
+def voronoi_walls(sites, points):
+    """For each of ``points`` (N x 2): its distance to the nearest wall of the Voronoi
+    tessellation of ``sites`` (M x 2) and the index of its cell's site. The distance to
+    the bisector of the two nearest sites is exactly the distance to the wall."""
+    d, i = cKDTree(sites).query(points, k=2)
+    wall = (d[:, 1] ** 2 - d[:, 0] ** 2) / (2 * np.linalg.norm(sites[i[:, 1]] - sites[i[:, 0]], axis=1))
+    return wall, i[:, 0]
 
 
 def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):

@@ -268,7 +268,7 @@ class Builder:
         per size for this condition."""
         key = round(float(flake_mm), 4)
         if key not in self._plate_cache:
-            from scipy.spatial import cKDTree
+            from .detail import voronoi_walls
             c, n = self.c, self.c.size
             cell = max(flake_mm / c.px, 1.5)                          # grid pixels per plate
             m = int(min(max((n / cell) ** 2, 4), 40000))
@@ -278,11 +278,8 @@ class Builder:
             warp = 0.15 * cell
             xx = xx + warp * noise(c.rng, n, cell, 2)
             yy = yy + warp * noise(c.rng, n, cell, 2)
-            d, i = cKDTree(sites).query(np.stack([xx.ravel(), yy.ravel()], 1), k=2)
-            # distance to the bisector of the two nearest sites: the distance to the edge
-            edge = (d[:, 1] ** 2 - d[:, 0] ** 2) / (2 * np.linalg.norm(sites[i[:, 1]] - sites[i[:, 0]], axis=1)
-                                                     + 1e-9)
-            thick = c.rng.random(m)[i[:, 0]]
+            edge, i = voronoi_walls(sites, np.stack([xx.ravel(), yy.ravel()], 1))
+            thick = c.rng.random(m)[i]
             self._plate_cache[key] = ((edge / cell).reshape(n, n).astype(np.float32),
                                       thick.reshape(n, n).astype(np.float32))
         return self._plate_cache[key]
