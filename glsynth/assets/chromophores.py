@@ -140,6 +140,13 @@ def _km_layer(K, S, thickness):
     return one_minus_e2 / den, 2 * b * e / den
 
 
+def _flattened(*params):
+    """The parameters broadcast together: their common shape and each as a flat float64
+    array."""
+    params = np.broadcast_arrays(*(np.asarray(x, np.float64) for x in params))
+    return params[0].shape, [p.reshape(-1) for p in params]
+
+
 # pixels per block of the spectral model: its (pixels x 31) temporaries stay in cache
 _BLOCK = 8192
 
@@ -149,11 +156,7 @@ def linear_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, e
     """Linear sRGB (..., 3) of skin with these chromophores, not clipped: a value outside
     [0, 1] is a colour outside sRGB's gamut."""
     sp = _spectra()
-    params = np.broadcast_arrays(*(np.asarray(x, np.float64) for x in
-                                   (melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis,
-                                    scatter)))
-    shape = params[0].shape
-    flat = [p.reshape(-1) for p in params]
+    shape, flat = _flattened(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis, scatter)
     to_linear = (sp["weights"] * (_D65 / sp["white"])) @ _XYZ_TO_LINEAR.T   # (31, 3)
     out = np.empty((flat[0].size, 3))
     for s in range(0, flat[0].size, _BLOCK):
@@ -209,11 +212,8 @@ def skin_rgb_fast(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0
     """``skin_rgb`` from a look-up table (within ~1/255 of it) where the epidermis is
     whole, the dermis scatters as usual and bilirubin and dermal melanin are 0, computed
     exactly elsewhere."""
-    params = np.broadcast_arrays(*(np.asarray(x, np.float64) for x in
-                                   (melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis,
-                                    scatter)))
-    shape = params[0].shape
-    mel, blood, oxy, bili, dmel, epi, scat = (x.reshape(-1) for x in params)
+    shape, (mel, blood, oxy, bili, dmel, epi, scat) = _flattened(
+        melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis, scatter)
     table, coords = _lut()
     pts = np.stack([np.log(np.clip(mel, 0, 1) + _LOG_EPS), np.log(np.clip(blood, 0, 0.7) + _LOG_EPS),
                     np.clip(oxy, 0, 1)], 1)
