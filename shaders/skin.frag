@@ -12,7 +12,7 @@
 // normal, at two scales (furrows and pores as a normal perturbation and cavity
 // darkening), and with HAIR, hair strands from the hair tile in per-vertex hair-flow
 // coordinates, shaded as fibres (Kajiya-Kay) and casting
-// a short parallax shadow. Both are scaled by the per-body skin parameters (u_params)
+// a short parallax shadow, and wrinkles from the crease tile laid across the hair flow. Both are scaled by the per-body skin parameters (u_params)
 // and by the texture's alpha, the detail weight: 0 on non-skin, so clothing, scalp hair
 // and eyes get none. Tiles are sampled at an explicit level of detail from the pixel's
 // footprint on the surface, so far views see their average and never alias.
@@ -61,6 +61,10 @@ uniform float u_hair_period;
 uniform float u_hair_size;
 uniform vec3 u_hair_rgb;           // sRGB colour of terminal hair
 uniform float u_unit;              // scene units per metre
+uniform sampler2D u_crease;        // crease tile (half floats): RG slope, B albedo change
+uniform float u_crease_period;
+uniform float u_crease_size;
+uniform float u_coarse_crease_scale;   // the tile's second reading (detail.COARSE_CREASE_SCALE)
 flat in mat3x2 g_hair;             // hair-flow coordinates (scene units) of the corners
 #endif
 #include "surface.glsl"
@@ -196,6 +200,29 @@ void main() {
     vec4 hsh = textureLod(u_hair, (hc + shift) / u_hair_period, hlod + 1.5);   // first layer only
     hair_shadow = 1.2 * hsh.r * clamp(tt, 0.0, 0.5) + 0.4 * hsh.b * tv;
     fibre = fibre_dir;
+    // wrinkles: the crease tile's grooves run along its x, laid along t (across the hair
+    // flow: around a limb, across the forehead and neck). Fine ones where the relief
+    // level rises above ordinary skin's (aged skin, dorsal hands, knuckles, elbows,
+    // knees), and deep creases a few millimetres apart higher still. Each fades out
+    // before a pixel covers its spacing: coarse mip levels of a tile of sparse lines
+    // still vary from texel to texel, which a far view would show as blotches
+    float px_mm = 1000.0 * footprint / u_unit;
+    // (1.05: ordinary skin's 0.5 is 128 / 255 in the map)
+    float fine_w = clamp((level - 1.05) / 0.95, 0.0, 1.0) * (1.0 - smoothstep(0.4, 1.2, px_mm));
+    float coarse_w = clamp((level - 1.3) / 0.7, 0.0, 1.0)
+                     * (1.0 - smoothstep(0.4 * u_coarse_crease_scale, 1.2 * u_coarse_crease_scale, px_mm));
+    if (fine_w + coarse_w > 0.0) {
+        vec2 cc = hc.yx / u_crease_period;
+        float clod = log2(max(footprint / u_crease_period * u_crease_size, 1e-6));
+        vec3 c = fine_w * textureLod(u_crease, cc, clod).rgb;
+        c += coarse_w * textureLod(u_crease, cc / u_coarse_crease_scale + vec2(0.29, 0.53),
+                                   clod - log2(u_coarse_crease_scale)).rgb;
+        // the tile's slopes along t and s to the world: the coordinates' gradients
+        // (dp/dt / |dp/dt|^2 for near-orthogonal hair-flow coordinates)
+        float a_c = u_relief_amount;
+        grad += a_c * (c.r * t_t / max(dot(t_t, t_t), 1e-20) + c.g * t_s / max(dot(t_s, t_s), 1e-20));
+        albedo *= 1.0 + a_c * c.b;
+    }
 #endif
 #endif
     grad -= ng * dot(ng, grad);     // the surface gradient

@@ -1,5 +1,7 @@
 """Skin shading (shaders/skin.frag): the torch twin, micro-detail that does not alias and
 stays off non-skin, no NaN from a flash at the lens, tiles that tile, hair coordinates."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -138,7 +140,7 @@ def test_a_flash_at_the_lens_gives_no_nan(renderer, rng):
 
 def test_tiles_wrap_seamlessly():
     t = detail.detail_tiles()
-    for tile in (t.relief, t.hair):
+    for tile in (t.relief, t.hair, t.crease):
         x = tile.astype(np.float32)
         inner = np.abs(np.diff(x, axis=1)).mean()
         across = np.abs(x[:, 0] - x[:, -1]).mean()       # the step from the last column to the first
@@ -146,9 +148,10 @@ def test_tiles_wrap_seamlessly():
         inner = np.abs(np.diff(x, axis=0)).mean()
         across = np.abs(x[0] - x[-1]).mean()
         assert across < 2 * inner + 1.0
-    r = t.relief.astype(np.float64)
-    assert np.abs(r[..., :2].mean((0, 1))).max() < 1e-3   # no tilt on average
-    assert abs(r[..., 2].mean()) < 1e-3                    # albedo change averages to 0
+    for tile in (t.relief, t.crease):
+        r = tile.astype(np.float64)
+        assert np.abs(r[..., :2].mean((0, 1))).max() < 1e-3   # no tilt on average
+        assert abs(r[..., 2].mean()) < 1e-3                    # albedo change averages to 0
 
 
 def _surface_per_hair_coordinate(v, f, hc):
@@ -213,3 +216,30 @@ def test_trunk_hair_runs_down_a_part_wider_than_tall(rng):
     down /= np.linalg.norm(down, axis=-1, keepdims=True)
     assert np.einsum("nk,nk->n", ds, down).min() > 0.95     # 0.972 worst over 300 seeds
     assert np.abs(np.linalg.norm(J[..., 0], axis=-1) - 1).max() < 0.15   # at the tile's size
+
+
+def test_wrinkles_run_across_the_hair_flow(renderer, rng):
+    """Where the relief level is high (aged skin, knuckles) the crease tile's grooves lie
+    along t, across the hair flow (around a limb): turning the hair-flow coordinates by
+    90 degrees turns the image's dominant gradient with them; at ordinary skin's level
+    (0.5) there are none, and the image does not depend on the coordinates' direction
+    beyond the hair itself (no hair here)."""
+    def render(params, along_y):
+        mesh = _skin_plane(rng, params=params)
+        if along_y:   # s = y, t = -x
+            hc = np.asarray(mesh.skin.hair_coords)
+            mesh.skin = dataclasses.replace(mesh.skin, hair_coords=np.stack([hc[..., 1], -hc[..., 0]], -1))
+        cam = _look_down(renderer, 0.04, x=0.0)
+        lights = [PointLight(np.asarray(cam.eye) + [0.02, 0.02, 0.01], ambient=0.2, diffuse=0.9)]
+        lum = renderer.render(mesh, cam, passes=("rgb",), lights=lights,
+                              material=Material(model="skin", oil=0.0))["rgb"].mean(-1)
+        return lum, np.abs(np.diff(lum, axis=1)).mean() / np.abs(np.diff(lum, axis=0)).mean()
+
+    old = (255, 0, 0, 0)
+    _, along_x = render(old, False)
+    _, along_y = render(old, True)
+    assert along_x > 1.15 and along_y < 1 / 1.15, (along_x, along_y)
+    ordinary = (128, 0, 0, 0)
+    a, _ = render(ordinary, False)
+    b, _ = render(ordinary, True)
+    assert np.abs(a - b).max() < 1e-6

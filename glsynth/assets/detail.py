@@ -20,8 +20,15 @@ views see their average and close-ups their structure:
   groups: R, G terminal hair (long, thick), B, A vellus hair (short, fine). A body's hair
   density map selects how many groups show, so density changes without aliasing
   (mipmaps average coverage, which is exactly what a far view should see).
+* the **crease tile** (``CREASE_PERIOD`` metres square) holds wrinkles: wavy grooves
+  that run along the tile's x, which the shader lays across the hair flow (around a
+  limb, across the forehead and the neck, as flexion creases and the wrinkles of aged
+  skin run), with fainter oblique families for the criss-cross of aged skin. The shader
+  reads it as it is (fine wrinkles ~1.3 mm apart) and ``COARSE_CREASE_SCALE`` times
+  larger (deep creases a few millimetres apart). Half floats: R, G the height slope
+  along x and y, B the relative albedo change (mean 0), A unused.
 
-Both are made from a seed with numpy/OpenCV in a few seconds and kept per process.
+All three are made from a seed with numpy/OpenCV in a few seconds and kept per process.
 Heights and sizes are in micrometres, from the dermatology literature's orders of
 magnitude: primary furrows 20-100 um deep and 0.2-1 mm apart, follicular openings
 50-150 um, terminal hairs 50-100 um thick and vellus hairs under 30 um.
@@ -41,6 +48,9 @@ HAIR_PERIOD = 0.016       # metres covered by one hair tile
 HAIR_SIZE = 2048          # texels (7.8 um each)
 MACRO_SCALE = 4.37        # the relief tile's second, coarser reading (incommensurate)
 MACRO_WEIGHT = 0.2        # its share at relief level 0.5 (the shader: times (level / 0.5)^2)
+CREASE_PERIOD = 0.024     # metres covered by one crease tile
+CREASE_SIZE = 1024        # texels (23 um each)
+COARSE_CREASE_SCALE = 3.3  # the crease tile's second reading: deep creases
 # skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
 # only, moderate sebum (RGBA: relief, pores, hair density, oiliness)
 DEFAULT_PARAMS = (140, 80, 64, 100)
@@ -48,12 +58,14 @@ DEFAULT_PARAMS = (140, 80, 64, 100)
 
 @dataclass(frozen=True)
 class DetailTiles:
-    """The two tiles (relief float16 RGBA, hair uint8 RGBA; row 0 = tile y 0) and their
-    physical periods."""
+    """The three tiles (relief and crease float16 RGBA, hair uint8 RGBA; row 0 = tile
+    y 0) and their physical periods."""
     relief: np.ndarray
     hair: np.ndarray
+    crease: np.ndarray
     relief_period: float = RELIEF_PERIOD
     hair_period: float = HAIR_PERIOD
+    crease_period: float = CREASE_PERIOD
 
 
 def _periodic_noise(rng, size, feature_px):
@@ -147,8 +159,7 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     # fine roughness: 2 um bumps ~25 um wide
     rough = 2.0 * _periodic_noise(rng, size, 25.0 / um)
     height = furrows + rough - 25.0 * pores                          # micrometres
-    gy = (np.roll(height, -1, 0) - np.roll(height, 1, 0)) / (2 * um)  # slope (um / um)
-    gx = (np.roll(height, -1, 1) - np.roll(height, 1, 1)) / (2 * um)
+    gx, gy = _slopes(height, um)
     # albedo: furrows a little darker (shadowed, thinner stratum corneum over them; the
     # relief's shading does most of it), melanin speckle (+-5% in patches ~0.1-0.3 mm)
     # and each plateau a shade lighter or darker; mean 0 over the tile
@@ -158,6 +169,34 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     shade = -0.12 * cavity + 0.05 * speckle + 0.04 * plateau
     shade -= shade.mean()
     return np.stack([gx, gy, shade, np.clip(pores, 0, 1)], -1).astype(np.float16)
+
+
+def _slopes(height, um):
+    """Central-difference slopes (um / um) along x and y of a periodic height map (um)."""
+    gy = (np.roll(height, -1, 0) - np.roll(height, 1, 0)) / (2 * um)
+    gx = (np.roll(height, -1, 1) - np.roll(height, 1, 1)) / (2 * um)
+    return gx, gy
+
+
+def _crease_tile(seed=0, size=CREASE_SIZE, period=CREASE_PERIOD):
+    rng = np.random.default_rng([seed, 3])
+    um = period * 1e6 / size
+    height = np.zeros((size, size), np.float32)
+    # (spacing um, direction of the lines' normal, waviness, share missing, depth um,
+    # groove width um): wrinkles along x ~1.3 mm apart, ~90 um deep (the skin between
+    # them bunched into a low ridge), and two fainter oblique families, mostly broken
+    families = ((1300, (0, 1), 0.35, 0.35, 90.0, 60.0),
+                (2100, (0.5, 1), 0.45, 0.7, 45.0, 45.0),
+                (2300, (-0.55, 1), 0.45, 0.7, 45.0, 45.0))
+    for spacing, normal, warp, fade, depth, width in families:
+        dist, strength = _line_family(rng, size, spacing / um, normal, warp, fade)
+        depth = depth * strength * np.clip(1 + 0.4 * _periodic_noise(rng, size, 1500 / um), 0.3, 1.6)
+        height -= depth * (np.exp(-dist / (width / um)) + 0.3 * np.exp(-dist / (0.3 * spacing / um)))
+    gx, gy = _slopes(height, um)
+    # grooves a little darker (shadowed, and light caught in them); mean 0
+    shade = -0.2 * np.clip(-(height - np.median(height)) / 90.0, 0, 1)
+    shade -= shade.mean()
+    return np.stack([gx, gy, shade, np.zeros_like(shade)], -1).astype(np.float16)
 
 
 def _draw_strands(canvas, rng, n, length_mm, width_um, spread_deg, curl, um, period_px):
@@ -204,6 +243,6 @@ def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
 
 @lru_cache(maxsize=2)
 def detail_tiles(seed: int = 0) -> DetailTiles:
-    """The relief and hair tiles for ``seed``, made once per process (~3.5 s on 2 cores,
-    ~2.7 s of it the relief)."""
-    return DetailTiles(_relief_tile(seed), _hair_tile(seed))
+    """The relief, hair and crease tiles for ``seed``, made once per process (~5 s on 2
+    cores, ~2.7 s of it the relief, ~1.5 s the creases)."""
+    return DetailTiles(_relief_tile(seed), _hair_tile(seed), _crease_tile(seed))

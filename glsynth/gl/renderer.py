@@ -16,7 +16,7 @@ import cv2
 import moderngl
 import numpy as np
 
-from ..assets.detail import MACRO_SCALE, MACRO_WEIGHT
+from ..assets.detail import COARSE_CREASE_SCALE, MACRO_SCALE, MACRO_WEIGHT
 from ..camera import Camera
 from ..errors import InputError
 from ..lighting import FALLOFF_NEAREST, Material, PointLight, check_lights
@@ -30,11 +30,11 @@ PASSES = ("gbuffer", "rgb", "labels")
 GBUFFER_LAYERS = ("face_id", "depth", "bary", "uv")
 MAX_LABEL_MAPS = 4  # one four-channel uint16 target
 # texture units: 0 colour, 1 shadow map, 2-5 label maps, then the skin shading's
-# parameter map, relief tile and hair tile
-SKIN_UNITS = (6, 7, 8)
+# parameter map, relief tile, hair tile and crease tile
+SKIN_UNITS = (6, 7, 8, 9)
 # lesion decals (shaders/decal.glsl): region map, per-decal info, colour, aux, ids
-DECAL_UNITS = {"u_decal_region": 9, "u_decal_info": 10, "u_decal_colour": 11, "u_decal_aux": 12,
-               "u_decal_ids": 13}
+DECAL_UNITS = {"u_decal_region": 10, "u_decal_info": 11, "u_decal_colour": 12, "u_decal_aux": 13,
+               "u_decal_ids": 14}
 MAX_SUPERSAMPLE = 8
 
 
@@ -400,19 +400,19 @@ class Renderer:
             vert = with_defines(vert, SHADOWS=shadows, **({"HAIR_COORDS": 1} if hair else {}))
             prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
             _set_units(prog, {"u_shadow_map": 1, "u_params": SKIN_UNITS[0], "u_relief": SKIN_UNITS[1],
-                              "u_hair": SKIN_UNITS[2], **DECAL_UNITS})
+                              "u_hair": SKIN_UNITS[2], "u_crease": SKIN_UNITS[3], **DECAL_UNITS})
             self.programs[key] = prog
         return key
 
     def _detail_tiles(self):
-        """The relief and hair tiles (glsynth.assets.detail) as repeating, mipmapped
+        """The relief, hair and crease tiles (glsynth.assets.detail) as repeating, mipmapped
         textures, made on first use; and a 1x1 skin parameter map for meshes without
         a SkinSurface."""
         if self._tiles is None:
             from ..assets.detail import DEFAULT_PARAMS, detail_tiles
             t = detail_tiles()
             out = {}
-            for name, img in (("relief", t.relief), ("hair", t.hair)):
+            for name, img in (("relief", t.relief), ("hair", t.hair), ("crease", t.crease)):
                 tex = self.ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(img).tobytes(),
                                        dtype="f2" if img.dtype == np.float16 else "f1")
                 tex.build_mipmaps()
@@ -687,10 +687,13 @@ class Renderer:
             (gpu.params or tiles["params"]).use(SKIN_UNITS[0])
             tiles["relief"].use(SKIN_UNITS[1])
             tiles["hair"].use(SKIN_UNITS[2])
+            tiles["crease"].use(SKIN_UNITS[3])
             values.update(u_relief_period=t.relief_period * unit, u_relief_size=float(t.relief.shape[0]),
                           u_pore_mean=tiles["pore_mean"], u_macro_scale=MACRO_SCALE,
                           u_macro_weight=MACRO_WEIGHT, u_hair_period=t.hair_period * unit,
-                          u_hair_size=float(t.hair.shape[0]), u_unit=unit)
+                          u_hair_size=float(t.hair.shape[0]), u_unit=unit,
+                          u_crease_period=t.crease_period * unit, u_crease_size=float(t.crease.shape[0]),
+                          u_coarse_crease_scale=COARSE_CREASE_SCALE)
             if mesh.skin is not None:
                 values["u_hair_rgb"] = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
         _set_uniforms(prog, values)
@@ -947,7 +950,7 @@ class Renderer:
             self._release_fbo(fbo)
         self._fbos.clear()
         if self._tiles is not None:
-            for name in ("relief", "hair", "params"):
+            for name in ("relief", "hair", "crease", "params"):
                 self._tiles[name].release()
             self._tiles = None
 
