@@ -184,6 +184,14 @@ def test_ita_in_band_and_monotone(tone_bodies):
     assert all(a > b for a, b in zip(medians, medians[1:])), medians
 
 
+def test_dark_skin_is_warm_brown_not_grey(tone_bodies):
+    """Very dark skin measures b* ~12-18 (a deep warm brown, hue angle ~50-65 degrees);
+    a locus falling to b* ~10 painted type VI skin grey, like dirt."""
+    lab = _lab(_healthy_skin(tone_bodies[6]))
+    L, a, b = np.median(lab, 0)
+    assert L < 42 and b > 12.5 and 45 < np.degrees(np.arctan2(b, a)) < 70, (L, a, b)
+
+
 def test_explicit_ita_wins_and_must_agree(cache):
     body = make_body(seed=5, ita=-40.0, texture_size=128, cache_dir=cache)
     assert body.meta["ita"] == -40.0 and body.meta["fitzpatrick"] == 6

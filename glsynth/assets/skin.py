@@ -65,9 +65,11 @@ def sample_ita(fitzpatrick: int, rng: np.random.Generator) -> float:
 
 def skin_lab(ita: float) -> np.ndarray:
     """Base CIELAB colour with the given ITA on a measured-skin locus: b* peaks (~19) for
-    intermediate tones and falls for very light and very dark skin; a* follows b*."""
+    intermediate tones and falls for very light and, less, for very dark skin (b* ~14 at
+    ITA -50, L* ~33: very dark skin is a deep warm brown, not grey); a* follows b*."""
     ita = float(np.clip(ita, -75.0, 80.0))
-    b = float(np.clip(19.0 - 7.0 * ((ita - 15.0) / 60.0) ** 2, 9.0, 19.0))
+    fall = 7.0 if ita > 15.0 else 4.0
+    b = float(np.clip(19.0 - fall * ((ita - 15.0) / 60.0) ** 2, 9.0, 19.0))
     L = 50.0 + b * np.tan(np.radians(ita))
     if L > 80.0:  # very light: keep L* plausible, lower b* instead
         L, b = 80.0, 30.0 / np.tan(np.radians(ita))
@@ -532,7 +534,10 @@ class _Painter:
         # less through more melanin (`vis`): at 3.4x, and unscaled, the top of the range
         # read as a pink rash on Fitzpatrick V-VI bodies
         uneven = 0.6 + 1.4 * self.look.blotchy
-        L = L0 + 4.0 * low + 3.0 * mid
+        # melanin's variation is multiplicative: the same relative spread on dark skin is
+        # fewer L* units (at full amplitude, L* 33 skin showed blotches like dirt)
+        tone = float(np.clip(L0 / 60.0, 0.55, 1.0))
+        L = L0 + tone * (4.0 * low + 3.0 * mid)
         a = (a0 + 3.0 * hue + 1.5 * mid
              + vis * (3.0 * (uneven - 1.0) * np.clip(hue, 0, None) + 6.0 * uneven * np.clip(blotch, 0, None)))
         b = b0 + 1.5 * low - 1.2 * hue
@@ -543,9 +548,9 @@ class _Painter:
         # amplitudes (4, 4, 2) gave 0.8 and 0.6, these 1.1 and 0.7
         melanin = nz.fbm(p + 41.0, 110.0, 3)
         blood = nz.fbm(p - 57.0, 140.0, 3)
-        L += 7.0 * melanin - 2.5 * vis * np.clip(blood, 0, None)
+        L += tone * 7.0 * melanin - 2.5 * vis * np.clip(blood, 0, None)
         a += 7.0 * vis * blood + 7.0 * (np.sqrt(uneven) - 1.0) * vis * np.clip(blood, 0, None)
-        b += 3.5 * melanin
+        b += tone * 3.5 * melanin
         # pores / fine grain per texel, scaled to the texel footprint
         fine = nz(p, 0.45 / self.texel_m)
         pores = _smoothstep(0.45, 0.9, nz(p + 3.0, 0.3 / self.texel_m))
