@@ -540,3 +540,60 @@ def test_scale_lies_in_plates_split_by_fissures():
     n_plates = len(np.unique(thickness))
     assert 100 < n_plates < 300, n_plates
     assert 0.3 < (cover > 0.2).mean() < 0.95
+
+
+def test_urticaria_wheals_swell_as_domes(rng):
+    """A wheal is oedema: its surface rises smoothly towards its middle (a plateau with a
+    step at its edge showed only an outline where melanin hides the flare)."""
+    from glsynth.assets.morphology import make_condition
+    rising = []
+    for seed in rng.integers(2 ** 31, size=6):
+        f = make_condition("urticaria", [int(seed)], size=256)
+        for k in range(1, int(f.instances.max()) + 1):
+            m = f.instances == k
+            if m.sum() < 400:
+                continue
+            d = ndimage.distance_transform_edt(m)
+            outer = m & (d > 0.2 * d.max()) & (d < 0.4 * d.max())
+            inner = m & (d > 0.7 * d.max())
+            rising.append(np.median(f.f["height"][inner]) > 1.2 * np.median(f.f["height"][outer]))
+    assert len(rising) >= 6 and np.mean(rising) >= 0.85, rising
+
+
+def test_lichen_planus_papules_are_violaceous_flat_topped_and_striated(rng):
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=4):
+        f = make_condition("lichen_planus", [int(seed)], size=256)
+        core = ndimage.binary_erosion(f.mask, iterations=2)
+        assert core.sum() > 30
+        assert np.median(f.f["oxygen"][core]) < 0.55                  # poorly oxygenated: violaceous
+        assert np.median(f.f["dermal_melanin"][core]) > 0.004          # pigment dropped into the dermis
+        h = f.f["height"][core]
+        assert np.percentile(h, 75) - np.percentile(h, 25) < 0.05 and np.median(h) > 0.05  # flat tops
+        assert (f.f["scale"][core] > 0.1).mean() > 0.02                 # Wickham's striae
+        if f.params["arrangement"] == "grouped":
+            assert f.instances.max() >= 5
+
+
+def test_inflammatory_patch_is_red_and_one_instance_per_patch(rng):
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=4):
+        f = make_condition("inflammatory_patch", [int(seed)], size=256)
+        assert np.median(f.f["blood_add"][f.mask]) > 0.08
+        assert np.median(f.f["blood_add"][~ndimage.binary_dilation(f.mask, iterations=15)]) < 0.01
+        for k in range(1, int(f.instances.max()) + 1):
+            assert ndimage.label(f.instances == k)[1] == 1
+
+
+def test_eczema_excoriations_lie_under_dark_dried_blood(rng):
+    """Scratches are crusted with dark dried blood along their length, not raw orange
+    erosions showing between a few lumps of crust."""
+    from glsynth.assets.morphology import CRUST_COLOURS, make_condition
+    crusted = []
+    for seed in rng.integers(2 ** 31, size=8):
+        f = make_condition("eczema", [int(seed)], size=256)
+        eroded = f.f["epidermis"] < 0.5
+        if eroded.sum() > 5:
+            crusted.append(np.median(f.f["crust"][eroded]) > 0.45)
+        assert f.crust_rgb == CRUST_COLOURS["haemorrhagic"]
+    assert crusted and all(crusted), crusted

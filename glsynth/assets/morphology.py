@@ -399,12 +399,19 @@ def _eczema(b, rng, R):
     b.f["height"] += 0.2 * pap
     b.erythema(pap, 2.0)
     b.scale(w, 0.12, 0.6, "white")
-    for _ in range(int(rng.integers(2, 8))):
+    # excoriations: short scratches, broken along their length, mostly under dark dried
+    # blood (raw, orange-red erosions of even width read as sticks laid on the skin)
+    broken = smoothstep(-0.3, 0.5, c.noise(max(0.5, R / 30), 1))
+    for _ in range(int(rng.integers(0, 7))):
         centre = rng.uniform(-R, R, 2) * 0.6
-        line = c.shape("linear", R * rng.uniform(0.1, 0.25), centre=centre, width=max(0.3, R * 0.02), aspect=1.0)
-        e = b.weight(line, 0.2) * w
-        b.erode(e, 0.05)
-        b.crust(e, 0.6, "haemorrhagic")
+        line = c.shape("linear", R * rng.uniform(0.04, 0.14), centre=centre,
+                       width=max(0.25, R * rng.uniform(0.006, 0.012)), aspect=1.0)
+        e = b.weight(line, 0.2) * w * broken
+        b.erode(e, 0.03)
+        b.crust(e, 1.0, "haemorrhagic")
+        # a scratch is crusted along its length, not in the lumps of a weeping plaque
+        b.f["crust"] = np.maximum(b.f["crust"], 0.85 * e)
+        b.f["crust_dark"] = np.maximum(b.f["crust_dark"], 0.6 * e)
     if rng.random() < 0.5:
         b.f["detail"] *= 1 + 1.0 * w          # lichenification
         b.f["melanin"] *= 1 + 0.6 * w
@@ -510,8 +517,13 @@ def _urticaria(b, rng, R):
         wheal = b.weight(sd - r * 0.15, r * 0.1)
         b.erythema(flare, 2.5)
         b.erythema(wheal, -0.3)                                          # pale, oedematous centre
-        b.f["height"] += 0.5 * wheal
+        # oedema swells the wheal as a smooth dome, taut and a little shiny (a plateau
+        # with a step at its edge showed only its outline, where the flare is hidden by
+        # melanin)
+        dome = smoothstep(-0.1 * r, 0.5 * r, sd - r * 0.15)
+        b.f["height"] += 0.5 * dome
         b.f["detail"] *= 1 - 0.5 * wheal
+        b.f["gloss"] = np.maximum(b.f["gloss"], 0.15 * dome)
         b.outline(flare, 0.4)
     return {"arrangement": "widespread"}
 
@@ -675,6 +687,60 @@ def _pigmented_patch(b, rng, R):
     return {"border": "jagged" if jagged else "smooth"}
 
 
+def _lichen_planus(b, rng, R):
+    """Lichen planus: flat-topped, polygonal, shiny papules 1-5 mm across, violaceous
+    (poorly oxygenated blood) and dusky with melanin dropped into the dermis (grey-brown,
+    near black on dark skin), crossed by fine white lines (Wickham's striae), grouped
+    and often merging into plaques."""
+    c = b.c
+    confluent = rng.random() < 0.4
+    n = int(rng.integers(8, 40))
+    for p in arrange(c, "grouped", n, R * 1.1, R * 0.06):
+        r = rng.uniform(0.6, 2.5) * (1.6 if confluent else 1.0)
+        sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.7, 1.0), irregular=0.35, warp=0.05)
+        w = b.weight(sd, r * 0.15)
+        b.erythema(w, rng.uniform(2.0, 3.5), oxygen=0.45)
+        b.f["melanin"] *= 1 + rng.uniform(0.1, 0.4) * w
+        b.f["dermal_melanin"] += w * rng.uniform(0.005, 0.02)
+        b.f["height"] += 0.12 * smoothstep(-r * 0.05, r * 0.25, sd)       # flat-topped
+        b.f["gloss"] = np.maximum(b.f["gloss"], 0.25 * w)
+        b.f["detail"] *= 1 - 0.5 * w
+        b.outline(w, 0.35, instance=1 if confluent else None)
+    cover = np.clip(b.f["height"] / 0.12, 0, 1)
+    striae = (1 - smoothstep(0.0, 0.12, np.abs(c.noise(max(0.5, R / 25), 1)))) * cover
+    b.f["scale"] = np.maximum(b.f["scale"], 0.45 * striae)
+    return {"arrangement": "confluent" if confluent else "grouped", "scale_rgb": SCALE_COLOURS["white"]}
+
+
+def _inflammatory_patch(b, rng, R):
+    """A large erythematous patch or thin plaque, the commonest look in clinical
+    photographs (nummular and contact dermatitis, patch-stage mycosis fungoides, fixed
+    drug eruption, cellulitis): pink to red on light skin, violaceous to dark brown on
+    dark skin, its border ill-defined or geographic, with uneven redness inside, and
+    sometimes fine scale, atrophic fine wrinkling or post-inflammatory darkening.
+    One to four patches, overlapping ones merging."""
+    c = b.c
+    n = int(rng.choice([1, 1, 2, 3, 4]))
+    border = str(rng.choice(["ill-defined", "sharp"], p=[0.6, 0.4]))
+    oxygen = rng.uniform(0.55, 0.85)
+    for i, p in enumerate(arrange(c, "grouped", n, R * 0.6, R * 0.3)):
+        r = R * (rng.uniform(0.55, 0.9) if i == 0 else rng.uniform(0.25, 0.5))
+        sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.5, 1.0), irregular=0.4, warp=0.25)
+        w = b.weight(sd, r * 0.3, border)
+        inside = 0.65 + 0.35 * smoothstep(-1.0, 1.0, c.noise(r / 3, 3))    # uneven redness
+        b.erythema(w * inside, rng.uniform(1.2, 3.0), oxygen=oxygen)
+        b.f["melanin"] *= 1 + rng.uniform(0.0, 0.6) * w
+        b.f["height"] += rng.uniform(0.0, 0.12) * w
+        b.outline(w, 0.35, instance=1)
+    w = np.clip(b.mask.astype(np.float32), 0, 1)
+    look = rng.choice(["plain", "scale", "atrophy"], p=[0.45, 0.35, 0.2])
+    if look == "scale":
+        b.scale(w, rng.uniform(0.15, 0.4), rng.uniform(0.4, 1.0), "white")
+    elif look == "atrophy":                                             # cigarette-paper wrinkling
+        b.f["detail"] *= 1 + 0.8 * w
+    return {"border": border, "surface": str(look), "patches": n}
+
+
 # preset -> (builder, size range in mm (the condition's extent), where it usually is)
 PRESETS = {
     "nevus": (_nevus, (2.5, 9.0)),
@@ -696,6 +762,8 @@ PRESETS = {
     "morphea": (_morphea, (20.0, 120.0)),
     "porokeratosis": (_porokeratosis, (30.0, 120.0)),
     "pigmented_patch": (_pigmented_patch, (15.0, 150.0)),
+    "lichen_planus": (_lichen_planus, (15.0, 80.0)),
+    "inflammatory_patch": (_inflammatory_patch, (30.0, 200.0)),
 }
 
 
