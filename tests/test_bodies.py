@@ -379,3 +379,27 @@ def test_anatomy_texture_parts_are_connected_with_straight_borders(default_body)
         return ((labels[:, 1:] != labels[:, :-1]) & cov[:, 1:] & cov[:, :-1]).sum() + \
             ((labels[1:] != labels[:-1]) & cov[1:] & cov[:-1]).sum()
     assert border(amap) < 0.85 * border(corner)
+
+
+def test_value_noise_against_a_pointwise_reference(rng):
+    """skin.Noise3D (vectorised, 32-bit hashing) is the smoothstep-interpolated lattice
+    noise of its permutation and values, computed here one point at a time."""
+    from glsynth.assets.skin import Noise3D
+    nz = Noise3D(int(rng.integers(2 ** 31)))
+    perm, vals = nz.perm[:256].tolist(), nz.vals.tolist()
+
+    def lattice(x, y, z):
+        return vals[perm[(perm[(perm[x % 256] + y % 256) % 256] + z % 256) % 256]]
+
+    freq = float(rng.uniform(1, 500))
+    pts = rng.uniform(-2, 2, (200, 3))
+    got = nz(pts, freq)
+    for p, g in zip(pts, got):
+        q = p * freq + nz.off
+        i = np.floor(q).astype(int)
+        f = q - i
+        u = f * f * (3 - 2 * f)
+        ref = sum((u[0] if dx else 1 - u[0]) * (u[1] if dy else 1 - u[1]) * (u[2] if dz else 1 - u[2])
+                  * lattice(i[0] + dx, i[1] + dy, i[2] + dz)
+                  for dx in (0, 1) for dy in (0, 1) for dz in (0, 1))
+        assert abs(g - ref) < 1e-5
