@@ -214,9 +214,12 @@ void main() {
     if (fine_w + coarse_w > 0.0) {
         vec2 cc = hc.yx / u_crease_period;
         float clod = log2(max(footprint / u_crease_period * u_crease_size, 1e-6));
-        vec3 c = fine_w * textureLod(u_crease, cc, clod).rgb;
-        c += coarse_w * textureLod(u_crease, cc / u_coarse_crease_scale + vec2(0.29, 0.53),
-                                   clod - log2(u_coarse_crease_scale)).rgb;
+        vec3 c = vec3(0.0);
+        if (fine_w > 0.0)
+            c = fine_w * textureLod(u_crease, cc, clod).rgb;
+        if (coarse_w > 0.0)
+            c += coarse_w * textureLod(u_crease, cc / u_coarse_crease_scale + vec2(0.29, 0.53),
+                                       clod - log2(u_coarse_crease_scale)).rgb;
         // the tile's slopes along t and s to the world: the coordinates' gradients
         // (dp/dt / |dp/dt|^2 for near-orthogonal hair-flow coordinates)
         float a_c = u_relief_amount;

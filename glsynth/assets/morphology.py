@@ -702,7 +702,8 @@ def _lichen_planus(b, rng, R):
         b.erythema(w, rng.uniform(2.0, 3.5), oxygen=0.45)
         b.f["melanin"] *= 1 + rng.uniform(0.1, 0.4) * w
         b.f["dermal_melanin"] += w * rng.uniform(0.005, 0.02)
-        b.f["height"] += 0.12 * smoothstep(-r * 0.05, r * 0.25, sd)       # flat-topped
+        # flat-topped; merging papules make one plateau, not stacked ones
+        b.f["height"] = np.maximum(b.f["height"], 0.12 * smoothstep(-r * 0.05, r * 0.25, sd))
         b.f["gloss"] = np.maximum(b.f["gloss"], 0.25 * w)
         b.f["detail"] *= 1 - 0.5 * w
         b.outline(w, 0.35, instance=1 if confluent else None)
