@@ -410,7 +410,7 @@ def _eczema(b, rng, R):
         b.erode(e, 0.03)
         b.crust(e, 1.0, "haemorrhagic")
         # a scratch is crusted along its length, not in the lumps of a weeping plaque
-        b.f["crust"] = np.maximum(b.f["crust"], 0.85 * e)
+        b.f["crust"] = np.maximum(b.f["crust"], 0.9 * np.minimum(1.5 * e, 1.0))
         b.f["crust_dark"] = np.maximum(b.f["crust_dark"], 0.6 * e)
     if rng.random() < 0.5:
         b.f["detail"] *= 1 + 1.0 * w          # lichenification
@@ -514,13 +514,16 @@ def _urticaria(b, rng, R):
         kind = rng.choice(["round", "annular", "serpiginous"], p=[0.5, 0.3, 0.2])
         sd = c.shape(str(kind), r, centre=p, irregular=0.3, warp=0.2, width=r * 0.5)
         flare = b.weight(sd, r * 0.4, "ill-defined")
-        wheal = b.weight(sd - r * 0.15, r * 0.1)
+        # the wheal lies inside the flare; a ring or band (half as wide as the shape) has
+        # less room for the margin than a round one
+        inset = r * (0.15 if kind == "round" else 0.05)
+        wheal = b.weight(sd - inset, r * 0.1)
         b.erythema(flare, 2.5)
         b.erythema(wheal, -0.3)                                          # pale, oedematous centre
         # oedema swells the wheal as a smooth dome, taut and a little shiny (a plateau
         # with a step at its edge showed only its outline, where the flare is hidden by
         # melanin)
-        dome = smoothstep(-0.1 * r, 0.5 * r, sd - r * 0.15)
+        dome = smoothstep(-0.1 * r, 0.5 * r, sd - inset)
         b.f["height"] += 0.5 * dome
         b.f["detail"] *= 1 - 0.5 * wheal
         b.f["gloss"] = np.maximum(b.f["gloss"], 0.15 * dome)
@@ -599,19 +602,34 @@ def _lupus(b, rng, R):
 
 
 def _pyogenic_granuloma(b, rng, R):
+    """Pyogenic granuloma (lobular capillary haemangioma): a domed, often lobulated,
+    friable papule, crimson to raspberry (much blood, little collagen to scatter), its thin
+    epidermis glistening and eroded in places, sometimes under dark dried blood, with a
+    fine collarette of scale at its base. Round, so a flash leaves a small highlight on
+    it, not a mirror."""
     c = b.c
-    sd = c.shape("round", R, irregular=0.1, warp=0.05)
+    sd = c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.08, warp=0.04)
     w = b.weight(sd, R * 0.08)
-    b.erode(w, 0.0)
-    b.f["blood_add"] += w * (rng.uniform(0.35, 0.55) - ERODED_BLOOD)
-    # a lobular capillary haemangioma: vessels, little collagen, a cherry to deep red
-    b.mix("scatter", w, rng.uniform(0.15, 0.4))
-    b.f["height"] += rng.uniform(1.0, 3.0) * smoothstep(-R * 0.1, R * 0.7, sd)
-    b.f["gloss"] = np.maximum(b.f["gloss"], 0.9 * w)
-    collar = smoothstep(R * 0.25, 0, np.abs(sd + R * 0.05))
-    b.scale(collar, 0.6, 0.3, "white")
+    # lobules a third of the lesion across, the clefts between them deeper and darker
+    lobes = smoothstep(-1.0, 1.0, c.noise(R * 0.6, 2))
+    cleft = (1 - smoothstep(0.0, 0.2, np.abs(c.noise(R * 0.5, 1)))) * rng.uniform(0.2, 0.5)
+    raw = smoothstep(-0.4, 0.6, c.noise(R * 0.4, 2)) * rng.uniform(0.5, 1.0)   # eroded surface
+    b.erode(w * raw, 0.0)
+    b.f["blood_add"] += w * (rng.uniform(0.45, 0.75) - ERODED_BLOOD * raw) * (1 + 0.3 * cleft)
+    b.mix("oxygen", w, rng.uniform(0.8, 0.92) - 0.1 * cleft)
+    b.mix("scatter", w, rng.uniform(0.08, 0.2))               # vessels, little collagen
+    b.f["melanin"] *= 1 - 0.8 * w                              # the epidermis over it is thin
+    s = np.clip(sd / R, 0.0, 1.0)
+    dome = np.sqrt(s * (2 - s)) * (0.92 + 0.08 * lobes) - 0.12 * cleft * s
+    b.f["height"] += rng.uniform(0.5, 0.9) * R * dome * w
+    b.f["gloss"] = np.maximum(b.f["gloss"], w * (0.45 + 0.35 * raw))
+    if rng.random() < 0.4:                                     # friable: it has bled
+        spot = smoothstep(0.55, 1.3, c.noise(R * 0.5, 2)) * w
+        b.crust(spot, 1.0, "haemorrhagic")
+    collar = smoothstep(R * 0.15, 0, np.abs(sd + R * 0.04))
+    b.scale(collar, 0.5, 0.25, "white")
     b.outline(w, 0.4)
-    return {}
+    return {"crust_rgb": CRUST_COLOURS["haemorrhagic"]}
 
 
 def _purpura(b, rng, R):
