@@ -621,3 +621,77 @@ def test_eczema_excoriations_lie_under_dark_dried_blood(rng):
             crusted.append(np.median(f.f["crust"][eroded]) > 0.45)
         assert f.crust_rgb == CRUST_COLOURS["haemorrhagic"]
     assert crusted and all(crusted), crusted
+
+
+def test_spots_match_the_nearest_spot_everywhere(rng):
+    """The windowed many-spot distance equals a brute-force maximum over all spots within
+    each spot's reach."""
+    from glsynth.assets import morphology as M
+    c = M.Canvas(np.random.default_rng(int(rng.integers(2 ** 31))), 96, 30.0)
+    centres = rng.uniform(-14, 14, (25, 2))
+    radii = rng.uniform(0.3, 2.0, 25)
+    sd, index = M.spots(c, centres, radii, irregular=0.0, reach=3.0)
+    d = radii[:, None, None] - np.hypot(c.x[None] - centres[:, 0, None, None], c.y[None] - centres[:, 1, None, None])
+    # where the nearest spot's window covers the cell (within 3 radii of its centre), the
+    # windowed value is the maximum over all spots
+    near = d.max(0) >= -2.0 * radii[d.argmax(0)]
+    assert near.mean() > 0.3
+    np.testing.assert_allclose(sd[near], d.max(0)[near], atol=1e-4)
+    assert (index[near] == d.argmax(0)[near]).all()
+    assert np.isfinite(sd).all() and sd.min() >= -3.0 * radii.max() - 1e-6
+
+
+def test_purpura_is_purple_and_comes_as_petechiae_papules_or_a_bruise(rng):
+    """Blood outside the vessels reads purple on light skin: darker, redder and less
+    yellow than the skin around it. Petechiae are many pinpoint instances; palpable
+    purpura is raised; a bruise is flat."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    seen = {}
+    for seed in rng.integers(2 ** 31, size=60):
+        f = make_condition("purpura", [int(seed)], size=256)
+        kind = f.params["kind"]
+        if kind in seen:
+            continue
+        seen[kind] = f
+        skin = reference_skin(2, 256, np.random.default_rng(int(seed)))
+        lab, base = srgb_to_lab(apply_to_skin(f, skin)), srgb_to_lab(skin)
+        blood = f.f["blood_add"]
+        core = f.mask & (blood > 0.6 * blood.max()) & (f.f["crust"] < 0.05)
+        dl = np.median(lab[core], 0) - np.median(base[~ndimage.binary_dilation(f.mask, iterations=5)], 0)
+        assert dl[0] < -8 and dl[1] > 5 and dl[2] < 0, (kind, dl)
+        flat = f.f["height"][f.mask].max() < 0.01
+        if kind == "petechiae":
+            areas = ndimage.sum(f.mask, f.instances, range(1, f.instances.max() + 1)) * f.mm_per_px ** 2
+            assert f.instances.max() >= 4 and np.median(areas) < np.pi * 1.2 ** 2 and flat
+        elif kind == "palpable":
+            assert not flat
+        else:
+            assert flat
+    assert set(seen) == {"petechiae", "palpable", "ecchymosis"}
+
+
+def test_nodular_bcc_is_a_smooth_pearly_dome_with_a_rolled_border(rng):
+    """A nodular BCC stands highest at its rolled border (a slight central dell), has
+    lost the skin's markings, is only softly glossy, and is pale pink rather than dark
+    red; a superficial one is a thin plaque."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    seen = set()
+    for seed in rng.integers(2 ** 31, size=24):
+        f = make_condition("bcc", [int(seed)], size=192)
+        seen.add(f.params["subtype"])
+        d = ndimage.distance_transform_edt(f.mask)
+        h = f.f["height"]
+        if f.params["subtype"] == "superficial":
+            assert h.max() < 0.3
+            continue
+        centre, ring = d > 0.8 * d.max(), (d > 0.15 * d.max()) & (d < 0.5 * d.max())
+        assert np.median(h[ring]) > np.median(h[centre])
+        assert f.params["ulcer"] or np.median(h[centre]) > 0.2
+        intact = f.mask & (f.f["epidermis"] > 0.9) & (f.f["crust"] < 0.05)
+        assert np.median(f.f["detail"][intact]) < 0.6 and f.f["gloss"][intact].max() <= 0.45
+        skin = reference_skin(2, 192, np.random.default_rng(int(seed)))
+        dl = np.median(srgb_to_lab(apply_to_skin(f, skin))[intact], 0) - np.median(srgb_to_lab(skin)[~f.mask], 0)
+        assert dl[0] > -10 and 2 < dl[1] < 15, dl
+    assert seen == {"nodular", "superficial"}

@@ -171,6 +171,29 @@ class Canvas:
         raise ValueError(f"unknown shape {kind!r}")
 
 
+def spots(canvas, centres, radii, irregular=0.15, reach=3.0):
+    """Signed distance (mm, > 0 inside) to the nearest of many small round spots, and the
+    index of the spot each cell belongs to (-1: none within ``reach`` radii). Each spot is
+    worked out on its own window of the grid, so hundreds of pinpoint spots cost what one
+    shape does; their outlines wobble by ``irregular`` of their radius."""
+    c = canvas
+    wobble = 1 + irregular * noise(c.rng, c.size, max(1.5, float(np.median(radii)) / c.px), 2)
+    sd = np.full((c.size, c.size), -np.inf, np.float32)
+    index = np.full((c.size, c.size), -1, np.int32)
+    for i, ((x, y), r) in enumerate(zip(centres, radii)):
+        span = reach * r / c.px
+        col, row = (x / c.extent + 0.5) * c.size, (y / c.extent + 0.5) * c.size
+        r0, r1 = max(int(row - span), 0), min(int(row + span) + 2, c.size)
+        c0, c1 = max(int(col - span), 0), min(int(col + span) + 2, c.size)
+        if r0 >= r1 or c0 >= c1:
+            continue
+        d = r * wobble[r0:r1, c0:c1] - np.hypot(c.x[r0:r1, c0:c1] - x, c.y[r0:r1, c0:c1] - y)
+        win = d > sd[r0:r1, c0:c1]
+        sd[r0:r1, c0:c1][win] = d[win]
+        index[r0:r1, c0:c1][win] = i
+    return np.maximum(sd, -reach * float(np.max(radii))), index
+
+
 def arrange(canvas, kind, n, spread_mm, min_gap_mm):
     """Centres (mm) of ``n`` lesions: grouped (a cluster), satellite (one big, small ones
     around), dermatomal (a band), widespread (over the whole grid)."""
@@ -382,7 +405,8 @@ def _plaque_at(b, rng, r, centre, scale_colour, erythema, merge=False, border="s
     sd = c.shape("oval", r, centre=centre, aspect=rng.uniform(0.6, 1.0), irregular=0.15, warp=0.1)
     w = b.weight(sd, r * 0.3, border)
     b.erythema(w, erythema)
-    b.f["height"] += rng.uniform(0.2, 0.5) * smoothstep(-r * 0.05, r * 0.2, sd)
+    # merging plaques make one plateau (their scale, added next, still piles up)
+    b.f["height"] = np.maximum(b.f["height"], rng.uniform(0.2, 0.5) * smoothstep(-r * 0.05, r * 0.2, sd))
     col = b.scale(w * smoothstep(0, r * 0.3, sd + r * 0.1), scale_cov, flake, scale_colour)
     b.outline(w, 0.3, instance=1 if merge else None)
     return col
@@ -437,23 +461,48 @@ def _tinea(b, rng, R):
 
 
 def _bcc(b, rng, R):
+    """Basal cell carcinoma. Nodular (two thirds): a pearly, translucent dome whose skin
+    is stretched smooth (its markings gone), with a rolled border, a slight central dell
+    and fine arborising vessels on top, sometimes a crusted central ulcer. Superficial: a
+    thin pink plaque with a thread-like raised edge and a little fine scale. Pearly is a
+    soft sheen on a smooth surface, not a wet gloss."""
     c = b.c
-    sd = c.shape("round", R, aspect=rng.uniform(0.75, 1.0), irregular=0.08, warp=0.04)
+    superficial = rng.random() < 0.35
+    sd = c.shape("round", R, aspect=rng.uniform(0.6 if superficial else 0.75, 1.0),
+                 irregular=0.2 if superficial else 0.08, warp=0.1 if superficial else 0.04)
     w = b.weight(sd, R * 0.1)
-    b.f["height"] += rng.uniform(0.8, 2.0) * smoothstep(-R * 0.05, R * 0.5, sd)
-    rim = smoothstep(R * 0.35, 0.0, np.abs(sd - R * 0.15)) * w          # rolled, pearly border
-    b.f["height"] += 0.5 * rim
-    b.f["gloss"] = np.maximum(b.f["gloss"], 0.7 * w)
-    b.mix("melanin", w, rng.uniform(0.5, 0.9))                          # translucent, pale
-    b.erythema(w, 0.8)
-    vessels = (1 - smoothstep(0.0, 0.08, np.abs(c.noise(R / 3, 2)))) * w * (sd > R * 0.1)
-    b.erythema(vessels, 6.0, 0.85)                                      # telangiectasia
-    if rng.random() < 0.5:                                              # central ulcer
-        core = b.weight(c.shape("round", R * rng.uniform(0.25, 0.5), irregular=0.2), R * 0.1)
+    thread = smoothstep(max(0.3, 1.5 * c.px), 0.0, np.abs(sd - R * 0.04)) * w
+    # fine, branching vessels: the zero lines of two noises, thinner where they branch off
+    trunk = 1 - smoothstep(0.0, 0.06, np.abs(c.noise(R / 2.5, 2)))
+    branch = (1 - smoothstep(0.0, 0.05, np.abs(c.noise(R / 6, 2)))) * smoothstep(0.0, 0.8, c.noise(R / 3, 1))
+    vessels = np.maximum(trunk, 0.7 * branch) * w
+    if superficial:
+        b.erythema(w * (0.75 + 0.25 * c.noise(R / 3, 2)), rng.uniform(1.0, 2.0))
+        b.f["height"] += 0.05 * w + 0.15 * thread
+        b.scale(w, 0.15, 0.5, "white")
+        b.erythema(vessels * 0.5, 3.0, 0.85)
+        b.f["melanin"] *= 1 + 0.15 * w
+        b.outline(w, 0.4)
+        return {"subtype": "superficial"}
+    height = rng.uniform(0.8, 2.0)
+    dell = rng.uniform(0.1, 0.35)
+    dome = smoothstep(-R * 0.05, R * 0.35, sd) * (1 - dell * smoothstep(R * 0.3, R * 0.9, sd))
+    rim = smoothstep(R * 0.3, 0.0, np.abs(sd - R * 0.2)) * w                 # rolled border
+    lobes = 1 + 0.08 * c.noise(R / 2.5, 2)             # not a turned dome: a light breaks up on it
+    b.f["height"] += (height * dome + 0.3 * height * rim) * lobes
+    b.f["gloss"] = np.maximum(b.f["gloss"], rng.uniform(0.2, 0.4) * w)
+    b.f["detail"] *= 1 - 0.6 * w                                            # stretched smooth
+    b.mix("melanin", w, rng.uniform(0.5, 0.9))                              # translucent, pale
+    b.mix("scatter", w, rng.uniform(1.15, 1.4))                             # pearly
+    b.erythema(w, rng.uniform(0.4, 1.0))
+    b.erythema(vessels * smoothstep(0.0, R * 0.2, sd), 5.0, 0.85)           # telangiectasia
+    ulcer = rng.random() < 0.4                                              # central ulcer
+    if ulcer:
+        core = b.weight(c.shape("round", R * rng.uniform(0.2, 0.45), irregular=0.2), R * 0.1)
         b.erode(core, 0.5)
         b.crust(core, 0.7, "haemorrhagic")
     b.outline(w, 0.4)
-    return {"crust_rgb": CRUST_COLOURS["haemorrhagic"]}
+    return {"subtype": "nodular", "ulcer": ulcer, "crust_rgb": CRUST_COLOURS["haemorrhagic"]}
 
 
 def _scc(b, rng, R):
@@ -498,7 +547,7 @@ def _acne(b, rng, R):
         sd = c.shape("round", r, centre=p, irregular=0.05, warp=0.02)
         w = b.weight(sd, r * 0.6, "ill-defined")
         b.erythema(w, rng.uniform(2.0, 4.5))
-        b.f["height"] += rng.uniform(0.3, 0.9) * smoothstep(-r * 0.3, r * 0.6, sd)
+        b.f["height"] = np.maximum(b.f["height"], rng.uniform(0.3, 0.9) * smoothstep(-r * 0.3, r * 0.6, sd))
         if rng.random() < 0.4:                                          # pustule
             head = b.weight(c.shape("round", r * 0.35, centre=p, irregular=0.0), r * 0.1)
             b.scale(head, 1.0, 0.2, "greasy")
@@ -524,7 +573,7 @@ def _urticaria(b, rng, R):
         # with a step at its edge showed only its outline, where the flare is hidden by
         # melanin)
         dome = smoothstep(-0.1 * r, 0.5 * r, sd - inset)
-        b.f["height"] += 0.5 * dome
+        b.f["height"] = np.maximum(b.f["height"], 0.5 * dome)           # merging wheals: one swelling
         b.f["detail"] *= 1 - 0.5 * wheal
         b.f["gloss"] = np.maximum(b.f["gloss"], 0.15 * dome)
         b.outline(flare, 0.4)
@@ -633,15 +682,49 @@ def _pyogenic_granuloma(b, rng, R):
 
 
 def _purpura(b, rng, R):
+    """Blood outside the vessels, so it does not blanch: petechiae (pinpoint red-purple
+    dots, in crops), palpable purpura (small raised papules of small-vessel vasculitis,
+    grouped, some merging, a few with a dusky or crusted centre) or an ecchymosis (a
+    bruise: blue-purple where fresh, fading through brown to bilirubin yellow from its
+    edge inwards as it ages). The blood lies deeper and is spent of oxygen, so it reads
+    purple, not the pink of erythema."""
     c = b.c
-    sd = c.shape("round", R, aspect=rng.uniform(0.5, 1.0), irregular=0.35, warp=0.3)
-    w = b.weight(sd, R * 0.3, "ill-defined")
-    age = rng.uniform(0, 1)                                              # fresh -> fading
-    b.f["blood_add"] += w * 0.25 * (1 - 0.6 * age)
-    b.mix("oxygen", w, 0.25)
-    b.f["bilirubin"] += w * 0.3 * age
+    kind = str(rng.choice(["petechiae", "palpable", "ecchymosis"], p=[0.3, 0.35, 0.35]))
+    if kind == "ecchymosis":
+        sd = c.shape("round", R, aspect=rng.uniform(0.5, 1.0), irregular=0.35, warp=0.3)
+        w = b.weight(sd, R * 0.45, "ill-defined")
+        age = rng.uniform(0, 1)                                          # fresh -> fading
+        # the bruise clears from its edge: old blood (and its breakdown) is left at the rim
+        core = smoothstep(-0.2, 1.0, sd / R + 0.4 * c.noise(R / 2, 2) - 0.6 * age)
+        blood = w * (0.15 + 0.35 * core) * (1 - 0.5 * age)
+        b.f["blood_add"] += blood
+        b.mix("oxygen", w, 0.2)
+        b.mix("scatter", w * core, rng.uniform(0.35, 0.6))
+        b.f["bilirubin"] += w * (1 - 0.7 * core) * 0.35 * age
+        b.f["dermal_melanin"] += w * 0.006 * age                         # haemosiderin brown
+        b.outline(w, 0.4)
+        return {"kind": kind, "age": round(float(age), 2)}
+    # spots a few radii apart, denser in some crops than others
+    r_lo, r_hi = (0.25, 1.0) if kind == "petechiae" else (0.6, 2.5)
+    confluent = kind == "palpable" and rng.random() < 0.4               # papules run together
+    fill = rng.uniform(0.3, 0.6) if confluent else rng.uniform(0.08, 0.3)
+    n = int(np.clip(fill * (R / (0.5 * (r_lo + r_hi))) ** 2, 4, 200))
+    centres = arrange(c, "grouped", n, R * 1.1, r_lo * 1.5)
+    radii = rng.uniform(r_lo, r_hi, len(centres))
+    sd, index = spots(c, centres, radii)
+    r = radii[index].astype(np.float32)            # each cell's own spot (index -1 is harmless:
+    w = b.weight(sd, r * 0.4, "ill-defined")       # sd there is far below the fade)
+    per_spot = lambda lo, hi: rng.uniform(lo, hi, len(centres)).astype(np.float32)[index]
+    b.f["blood_add"] += w * per_spot(0.35, 0.7)
+    b.mix("oxygen", w, per_spot(0.3, 0.55))
+    b.mix("scatter", w, per_spot(0.3, 0.6))
+    if kind == "palpable":
+        b.f["height"] += per_spot(0.1, 0.3) * smoothstep(-0.2, 0.6, sd / r)
+        necrotic = per_spot(0, 1) < 0.15                                # a dusky, crusted centre
+        b.crust(smoothstep(0.5, 0.65, sd / r) * necrotic, 0.9, "haemorrhagic")
     b.outline(w, 0.4)
-    return {"age": round(float(age), 2)}
+    return {"kind": kind, "arrangement": "confluent" if confluent else "grouped",
+            "crust_rgb": CRUST_COLOURS["haemorrhagic"]}
 
 
 def _morphea(b, rng, R):
