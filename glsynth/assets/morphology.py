@@ -592,17 +592,22 @@ def _vitiligo(b, rng, R):
 
 def _pityriasis_rosea(b, rng, R):
     c = b.c
-    herald = c.shape("oval", R * 0.35, aspect=0.6, irregular=0.1, warp=0.05)
+    herald = c.shape("oval", R * 0.35, aspect=0.6, irregular=0.05, warp=0.03)
     pts = arrange(c, "widespread", int(rng.integers(5, 14)), R, R * 0.18)
     axis = rng.uniform(0, np.pi)                                        # along skin tension lines
     for i, p in enumerate(pts):
         r = R * (0.3 if i == 0 else rng.uniform(0.08, 0.16))
-        sd = herald if i == 0 else c.shape("oval", r, centre=p, aspect=0.55, angle=axis, irregular=0.1, warp=0.05)
-        w = b.weight(sd, r * 0.3)
-        b.erythema(w, rng.uniform(1.2, 2.2), 0.7)                     # salmon
-        b.f["melanin"] *= 1 + 0.5 * w
-        collar = smoothstep(r * 0.3, 0.0, np.abs(sd - r * 0.2)) * w     # collarette of scale
-        b.scale(collar, 0.7, 0.3, "white")
+        sd = herald if i == 0 else c.shape("oval", r, centre=p, aspect=0.55, angle=axis, irregular=0.05, warp=0.03)
+        # smooth ovals whose salmon edge fades into the skin; the centre a little paler
+        w = b.weight(sd, r * 0.25, "ill-defined")
+        edge = 1 - 0.35 * smoothstep(r * 0.2, r * 0.7, sd)
+        b.erythema(w * edge, rng.uniform(1.2, 2.2), 0.7)
+        b.f["melanin"] *= 1 + 0.4 * w
+        # a fine collarette of scale just inside the edge, free towards the centre: a thin
+        # translucent rim, not flakes (at this size they were a speckle of dots)
+        collar = smoothstep(r * 0.15, 0.0, np.abs(sd - r * 0.12)) * w
+        b.f["scale"] = np.maximum(b.f["scale"], 0.3 * collar * (0.7 + 0.3 * c.noise(r / 3, 1)))
+        b.f["detail"] *= 1 - 0.3 * collar
         b.outline(w, 0.4)
     return {"arrangement": "widespread"}
 
@@ -798,7 +803,8 @@ def _lichen_planus(b, rng, R):
     n = int(rng.integers(8, 40))
     for p in arrange(c, "grouped", n, R * 1.1, R * 0.06):
         r = rng.uniform(0.6, 2.5) * (1.6 if confluent else 1.0)
-        sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.7, 1.0), irregular=0.35, warp=0.05)
+        # polygonal: a few straight-ish sides, not a star's points
+        sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.7, 1.0), irregular=0.2, warp=0.03)
         w = b.weight(sd, r * 0.15)
         b.erythema(w, rng.uniform(2.0, 3.5), oxygen=0.45)
         b.f["melanin"] *= 1 + rng.uniform(0.1, 0.4) * w
