@@ -566,6 +566,16 @@ def test_scale_lies_in_plates_split_by_fissures():
     assert 0.3 < (cover > 0.2).mean() < 0.95
 
 
+def test_light_scale_is_a_haze_not_loose_dots(rng):
+    """Light scale whitens most of a plaque a little (a powdery film with a few flakes),
+    rather than leaving a few bright flakes on bare skin."""
+    from glsynth.assets import morphology as M
+    b = M.Builder(M.Canvas(np.random.default_rng(int(rng.integers(2 ** 31))), 256, 30.0))
+    b.scale(np.ones((256, 256), np.float32), 0.2, 0.8)
+    cover = b.f["scale"]
+    assert (cover > 0.08).mean() > 0.6 and cover.mean() < 0.35, ((cover > 0.08).mean(), cover.mean())
+
+
 def test_urticaria_wheals_swell_as_domes(rng):
     """A wheal is oedema: its surface rises smoothly towards its middle (a plateau with a
     step at its edge showed only an outline where melanin hides the flare)."""

@@ -280,7 +280,10 @@ class Builder:
         opacity = (0.4 + 0.45 * thickness) * (0.5 + 0.5 * coverage) * grain
         plates = smoothstep(0.0, 0.2, keep - (1 - thickness)) * opacity
         flakes = plates * fissure
-        self.f["scale"] = np.maximum(self.f["scale"], np.clip(w * flakes, 0, 0.92))
+        # between the plates, a thin powdery film: light scale whitens a plaque as a
+        # haze with a few flakes on it, not as loose bright dots on bare red skin
+        haze = (0.12 + 0.3 * coverage) * smoothstep(-1.5, 1.0, c.noise(flake_mm * 2, 2)) * grain
+        self.f["scale"] = np.maximum(self.f["scale"], np.clip(w * np.maximum(flakes, haze), 0, 0.92))
         self.f["height"] += 0.12 * w * flakes * (0.6 + 0.4 * smoothstep(0.3, 0.05, wall))
         self.f["detail"] *= 1 - 0.6 * w * coverage
         return SCALE_COLOURS[colour]
