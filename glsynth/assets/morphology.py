@@ -488,7 +488,7 @@ def _bcc(b, rng, R):
         b.outline(w, 0.4)
         return {"subtype": "superficial"}
     height = rng.uniform(0.8, 2.0)
-    dell = rng.uniform(0.1, 0.35)
+    dell = rng.uniform(0.15, 0.35)
     dome = smoothstep(-R * 0.05, R * 0.35, sd) * (1 - dell * smoothstep(R * 0.3, R * 0.9, sd))
     rim = smoothstep(R * 0.3, 0.0, np.abs(sd - R * 0.2)) * w                 # rolled border
     lobes = 1 + 0.08 * c.noise(R / 2.5, 2)             # not a turned dome: a light breaks up on it
