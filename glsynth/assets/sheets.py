@@ -72,10 +72,10 @@ def condition_patch(fields, fitzpatrick, rng, texture_size=256):
     colour[..., 3] = 255
     gy, gx = np.gradient(fields.f["height"] / fields.mm_per_px)          # slope, mm per mm
     aux = np.empty((size, size, 4), np.uint8)
-    aux[..., 0] = np.clip(128 + 127 * gx / SLOPE_RANGE, 0, 255)
-    aux[..., 1] = np.clip(128 + 127 * gy / SLOPE_RANGE, 0, 255)
-    aux[..., 2] = np.clip(255 * fields.f["gloss"], 0, 255)
-    aux[..., 3] = np.clip(255 * fields.f["detail"] / DETAIL_RANGE, 0, 255)
+    aux[..., 0] = np.rint(np.clip(128 + 127 * gx / SLOPE_RANGE, 1, 255))
+    aux[..., 1] = np.rint(np.clip(128 + 127 * gy / SLOPE_RANGE, 1, 255))
+    aux[..., 2] = np.rint(np.clip(255 * fields.f["gloss"], 0, 255))
+    aux[..., 3] = np.rint(np.clip(255 * fields.f["detail"] / DETAIL_RANGE, 0, 255))
     fov = 30.0
     cam = gs.Camera.look_at((0, 0, half / np.tan(np.radians(fov) / 2)), (0, 0, 0), up=(0, 1, 0),
                             fov_deg=fov, width=size, height=size)

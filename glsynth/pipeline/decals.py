@@ -165,10 +165,11 @@ def _fields_decal(fields, src, uv, original, p, c, a, inst, rows, cols, jac, slo
     # as a slope (world per world)
     gy, gx = np.gradient(fields.f["height"])
     hx, hy = g(gx), g(gy)
-    a[:, 0] = 128 + 127 * np.clip((hx * jac[0, 0] + hy * jac[1, 0]) * slope_per_mm / SLOPE_RANGE, -1, 1)
-    a[:, 1] = 128 + 127 * np.clip((hx * jac[0, 1] + hy * jac[1, 1]) * slope_per_mm / SLOPE_RANGE, -1, 1)
-    a[:, 2] = 255 * np.clip(g(fields.f["gloss"]), 0, 1)
-    a[:, 3] = 255 * np.clip(g(fields.f["detail"]) / DETAIL_RANGE, 0, 1)
+    # rounded, not truncated: truncation tilted every small negative slope a step further
+    a[:, 0] = np.rint(128 + 127 * np.clip((hx * jac[0, 0] + hy * jac[1, 0]) * slope_per_mm / SLOPE_RANGE, -1, 1))
+    a[:, 1] = np.rint(128 + 127 * np.clip((hx * jac[0, 1] + hy * jac[1, 1]) * slope_per_mm / SLOPE_RANGE, -1, 1))
+    a[:, 2] = np.rint(255 * np.clip(g(fields.f["gloss"]), 0, 1))
+    a[:, 3] = np.rint(255 * np.clip(g(fields.f["detail"]) / DETAIL_RANGE, 0, 1))
     n = fields.size
     gi = np.clip(np.floor(src[:, 1] + 0.5).astype(np.int64), 0, n - 1)
     gj = np.clip(np.floor(src[:, 0] + 0.5).astype(np.int64), 0, n - 1)
