@@ -54,7 +54,7 @@ def condition_patch(fields, fitzpatrick, rng, texture_size=256):
     resolution, and skin micro-detail (relief, pores, vellus hair)."""
     import glsynth as gs
     from ..mesh import SkinSurface, grid_faces
-    from ..pipeline.decals import DETAIL_RANGE, SLOPE_RANGE, Decals, projection_rows
+    from ..pipeline.decals import Decals, encode_aux, projection_rows
     from .lesions import reference_skin
     from .morphology import apply_to_skin
     half = fields.extent_mm / 2000.0
@@ -71,11 +71,7 @@ def condition_patch(fields, fitzpatrick, rng, texture_size=256):
     colour[..., :3] = apply_to_skin(fields, skin)
     colour[..., 3] = 255
     gy, gx = np.gradient(fields.f["height"] / fields.mm_per_px)          # slope, mm per mm
-    aux = np.empty((size, size, 4), np.uint8)
-    aux[..., 0] = np.rint(np.clip(128 + 127 * gx / SLOPE_RANGE, 1, 255))
-    aux[..., 1] = np.rint(np.clip(128 + 127 * gy / SLOPE_RANGE, 1, 255))
-    aux[..., 2] = np.rint(np.clip(255 * fields.f["gloss"], 0, 255))
-    aux[..., 3] = np.rint(np.clip(255 * fields.f["detail"] / DETAIL_RANGE, 0, 255))
+    aux = encode_aux(gx, gy, fields.f["gloss"], fields.f["detail"])
     fov = 30.0
     cam = gs.Camera.look_at((0, 0, half / np.tan(np.radians(fov) / 2)), (0, 0, 0), up=(0, 1, 0),
                             fov_deg=fov, width=size, height=size)

@@ -38,6 +38,18 @@ DETAIL_RANGE = 2.0  # micro-relief visibility stored in aux alpha: 0..255 <-> 0.
 FILE = "decals.npz"
 
 
+def encode_aux(slope_x, slope_y, gloss, detail) -> np.ndarray:
+    """The aux channels (uint8, last axis 4) of relief slopes (world per world), gloss
+    (0..1) and micro-relief visibility (0..DETAIL_RANGE), rounded to the nearest code:
+    truncation tilted every small negative slope one step further."""
+    def code(x, lo, hi, offset, scale):
+        return np.rint(offset + scale * np.clip(np.asarray(x), lo, hi) / hi)
+    return np.stack([code(slope_x, -SLOPE_RANGE, SLOPE_RANGE, 128, 127),
+                     code(slope_y, -SLOPE_RANGE, SLOPE_RANGE, 128, 127),
+                     code(gloss, 0, 1, 0, 255),
+                     code(detail, 0, DETAIL_RANGE, 0, 255)], -1).astype(np.uint8)
+
+
 @dataclass
 class Decals:
     """The decals of one body. region: (H, W) uint16 at the texture's size, decal layer
@@ -165,11 +177,9 @@ def _fields_decal(fields, src, uv, original, p, c, a, inst, rows, cols, jac, slo
     # as a slope (world per world)
     gy, gx = np.gradient(fields.f["height"])
     hx, hy = g(gx), g(gy)
-    # rounded, not truncated: truncation tilted every small negative slope a step further
-    a[:, 0] = np.rint(128 + 127 * np.clip((hx * jac[0, 0] + hy * jac[1, 0]) * slope_per_mm / SLOPE_RANGE, -1, 1))
-    a[:, 1] = np.rint(128 + 127 * np.clip((hx * jac[0, 1] + hy * jac[1, 1]) * slope_per_mm / SLOPE_RANGE, -1, 1))
-    a[:, 2] = np.rint(255 * np.clip(g(fields.f["gloss"]), 0, 1))
-    a[:, 3] = np.rint(255 * np.clip(g(fields.f["detail"]) / DETAIL_RANGE, 0, 1))
+    a[:] = encode_aux((hx * jac[0, 0] + hy * jac[1, 0]) * slope_per_mm,
+                      (hx * jac[0, 1] + hy * jac[1, 1]) * slope_per_mm,
+                      g(fields.f["gloss"]), g(fields.f["detail"]))
     n = fields.size
     gi = np.clip(np.floor(src[:, 1] + 0.5).astype(np.int64), 0, n - 1)
     gj = np.clip(np.floor(src[:, 0] + 0.5).astype(np.int64), 0, n - 1)
