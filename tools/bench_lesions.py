@@ -4,8 +4,8 @@
 
 For every preset: the median, over ``--seeds`` seeds, of the seconds ``make_condition``
 takes on a ``--size`` grid (the default config's ``lesions.resolution``), and the median
-number of lesion instances it outlines. One warm-up call per preset first (scipy and
-OpenCV set-up, the plate cache are not what a run pays per lesion). Prints a Markdown table.
+number of lesion instances it outlines. One untimed warm-up call first (imports and
+first-use set-up are not what a run pays per lesion). Prints a Markdown table.
 """
 from __future__ import annotations
 

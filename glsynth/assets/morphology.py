@@ -474,13 +474,13 @@ def _bcc(b, rng, R):
     sd = c.shape("round", R, aspect=rng.uniform(0.6 if superficial else 0.75, 1.0),
                  irregular=0.2 if superficial else 0.08, warp=0.1 if superficial else 0.04)
     w = b.weight(sd, R * 0.1)
-    thread = smoothstep(max(0.3, 1.5 * c.px), 0.0, np.abs(sd - R * 0.04)) * w
     # fine, branching vessels: the zero lines of two noises, thinner where they branch off
     trunk = 1 - smoothstep(0.0, 0.06, np.abs(c.noise(R / 2.5, 2)))
     branch = (1 - smoothstep(0.0, 0.05, np.abs(c.noise(R / 6, 2)))) * smoothstep(0.0, 0.8, c.noise(R / 3, 1))
     vessels = np.maximum(trunk, 0.7 * branch) * w
     if superficial:
         b.erythema(w * (0.75 + 0.25 * c.noise(R / 3, 2)), rng.uniform(1.0, 2.0))
+        thread = smoothstep(max(0.3, 1.5 * c.px), 0.0, np.abs(sd - R * 0.04)) * w
         b.f["height"] += 0.05 * w + 0.15 * thread
         b.scale(w, 0.15, 0.5, "white")
         b.erythema(vessels * 0.5, 3.0, 0.85)
