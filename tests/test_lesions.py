@@ -428,6 +428,20 @@ def test_shades_of_gray_equalises_minkowski_means():
         shades_of_gray(img.astype(np.float32))
 
 
+def test_shades_of_gray_matches_the_pixel_formula(rng):
+    """The histogram shortcut against the formula applied to the pixels themselves."""
+    for k in range(6):
+        shape = (int(rng.integers(1, 90)), int(rng.integers(1, 90)), 3)
+        img = (rng.random(shape) ** rng.uniform(0.3, 3, 3) * 255).astype(np.uint8)
+        if k == 5:
+            img[..., 1] = 0  # no estimate possible: unchanged
+        p = rng.choice([1.0, 2.5, 6.0])
+        x = img.astype(np.float64)
+        e = np.mean(x ** p, axis=(0, 1)) ** (1 / p)
+        want = img if np.any(e <= 0) else np.clip(np.rint(x * np.sqrt(np.mean(e ** 2)) / e), 0, 255)
+        np.testing.assert_array_equal(shades_of_gray(img, p=p), want.astype(np.uint8))
+
+
 def test_lab_and_ita_known_colours():
     # Published CIELAB (D65) values of the sRGB primaries, white and black.
     rgb = np.array([[255, 0, 0], [0, 0, 255], [255, 255, 255], [0, 0, 0]], np.uint8)
