@@ -48,7 +48,8 @@ PART_GROUPS = np.array([0, 1, 2, 2, 3, 4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 7, 7], np.u
 
 def group_labels(labels) -> np.ndarray:
     """Map 16-part anatomy labels (0 = background) to the 7 groups (0 = background)."""
-    return PART_GROUPS[np.asarray(labels, dtype=np.int64)]
+    labels = np.asarray(labels)
+    return PART_GROUPS[labels if labels.dtype == np.uint8 else labels.astype(np.int64)]
 
 
 # ---- false colours (uint8 RGB, index = label; background black) -------------------------------

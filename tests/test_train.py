@@ -459,3 +459,31 @@ def test_augmentation_is_seeded_and_degrades_like_a_camera():
                            scale_range=(3.0, 3.0), degrade=False)
         seen.append(out.std())
     assert np.median(seen) > 30      # stripes stay resolved when magnified
+
+
+def test_normalise_is_shades_of_gray_then_imagenet_statistics(rng):
+    from glsynth.assets.colour import shades_of_gray
+    from glsynth.train import data as D
+    img = (rng.random((37, 53, 3)) ** rng.uniform(0.5, 2, 3) * 255).astype(np.uint8)
+    want = ((shades_of_gray(img).astype(np.float32) / 255 - D.MEAN) / D.STD).transpose(2, 0, 1)
+    got = D.normalise(img)
+    assert got.dtype == np.float32 and got.shape == (3, 37, 53)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+
+
+def test_training_samples_are_the_same_from_the_cache(synth, rng):
+    """Decoded samples kept in memory give the same tensors as decoding afresh, and the
+    cache holds no more than its budget."""
+    from glsynth.train.trainer import TrainSet
+    seed = int(rng.integers(2**31))
+    cached, fresh = TrainSet([synth], size=64, seed=seed), TrainSet([synth], size=64, seed=seed, cache_gb=0)
+    for epoch in (0, 1):  # epoch 1 reads the cache filled in epoch 0
+        for i in range(len(fresh)):
+            for a, b in zip(cached[(epoch, 0, i)], fresh[(epoch, 0, i)]):
+                assert torch.equal(a, b)
+    assert len(cached.cache) == len(cached) and not fresh.cache
+    one = sum(a.nbytes for a in cached.cache[0] if a is not None)
+    small = TrainSet([synth], size=64, cache_gb=2.5 * one / 2**30)
+    for i in range(len(small)):
+        small.load(i)
+    assert 1 <= len(small.cache) <= 2 and small.cache_left >= 0

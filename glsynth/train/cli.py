@@ -22,7 +22,8 @@ def cmd_train(args):
                workers=args.workers, width=args.width, depth=args.depth,
                save_every=args.save_every, progress=not args.quiet, val=args.val,
                val_layout=args.val_layout, val_every=args.val_every, real_train=args.real_train,
-               real_layout=args.real_layout, real_ratio=args.real_ratio, ema=args.ema)
+               real_layout=args.real_layout, real_ratio=args.real_ratio, ema=args.ema,
+               cache_gb=args.cache_gb)
     h = ck["history"][-1] if ck["history"] else {}
     print(f"wrote {args.out}: epoch {ck['epoch']}/{ck['epochs_planned']}, step {ck['step']}, "
           f"{ck['n_parameters']} parameters" + (f", last epoch loss {h['loss']:.4f}" if h else "")
@@ -84,6 +85,9 @@ def register(sub):
                    help="validate and export an exponential moving average of the weights with "
                         "this decay (default 0.999, about the last 1,000 steps; 0: the last weights)")
     p.add_argument("--workers", type=int, default=0, help="data loader processes (default 0)")
+    p.add_argument("--cache-gb", type=float, default=4.0, metavar="GB",
+                   help="keep up to GB of decoded training samples in memory (default 4; pays "
+                        "with --workers 0; 0: decode every sample every time)")
     p.add_argument("--save-every", type=float, default=5.0, metavar="MIN",
                    help="also checkpoint every MIN minutes within an epoch (default 5)")
     p.add_argument("--threads", type=int, default=None,
