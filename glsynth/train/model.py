@@ -63,6 +63,10 @@ class SegNet(nn.Module):
         self.dec1 = DSConv(c[2] + c[1], c[1])
         self.seg_head = nn.Conv2d(c[1], n_seg, 1)
         self.anatomy_head = nn.Conv2d(c[1], n_anatomy, 1)
+        # channels-last (NHWC) weights and activations: the depthwise and 1x1 convolutions
+        # run ~20% faster on a CPU this way (oneDNN); ``.to(device)`` and
+        # ``load_state_dict`` keep the layout
+        self.to(memory_format=torch.channels_last)
 
     @staticmethod
     def _up_cat(x, skip):
@@ -74,6 +78,7 @@ class SegNet(nn.Module):
         ph, pw = (-h) % 32, (-w) % 32
         if ph or pw:
             x = F.pad(x, (0, pw, 0, ph), mode="reflect" if min(h, w) > max(ph, pw) else "replicate")
+        x = x.contiguous(memory_format=torch.channels_last)
         s0 = self.stem(x)
         s1 = self.enc1(s0)
         s2 = self.enc2(s1)
