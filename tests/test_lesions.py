@@ -695,6 +695,29 @@ def test_purpura_is_purple_and_comes_as_petechiae_papules_or_a_bruise(rng):
     assert set(seen) == {"petechiae", "palpable", "ecchymosis"}
 
 
+def test_discoid_lupus_has_a_scaly_dark_rim_around_a_pale_scar_with_plugs(rng):
+    """Discoid lupus: the rim is raised, scalier and darker than the centre (more
+    melanin), the centre is depigmented, and it holds follicular plugs, small separate
+    dots of keratin. On type VI skin the rim reads darker than the scar (most of it:
+    islands of pigment stay)."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    for seed in rng.integers(2 ** 31, size=10):
+        f = make_condition("lupus", [int(seed)], size=256)
+        d = ndimage.distance_transform_edt(f.mask)
+        rim, centre = f.mask & (d < 0.15 * d.max()), d > 0.75 * d.max()
+        m = f.f["melanin"]
+        assert np.median(m[rim]) > 1.2 and np.median(m[centre]) < 0.9    # islands of pigment stay
+        assert np.percentile(m[centre], 25) < 0.5
+        assert np.median(f.f["height"][rim]) > np.median(f.f["height"][centre])
+        assert np.mean(f.f["scale"][rim] > 0.2) > np.mean(f.f["scale"][centre] > 0.2)
+        plugs, n = ndimage.label(f.f["scale"] * (d > 0.5 * d.max()) > 0.5)
+        assert n >= 3 and np.bincount(plugs.ravel())[1:].max() < 0.01 * f.mask.sum(), n
+        skin = reference_skin(6, 256, np.random.default_rng(int(seed)))
+        lum = srgb_to_lab(apply_to_skin(f, skin))[..., 0]
+        assert np.median(lum[rim]) < np.percentile(lum[centre], 75) - 10
+
+
 def test_nodular_bcc_is_a_smooth_pearly_dome_with_a_rolled_border(rng):
     """A nodular BCC stands highest at its rolled border (a slight central dell), has
     lost the skin's markings, is only softly glossy, and is pale pink rather than dark

@@ -642,20 +642,37 @@ def _ulcer(b, rng, R):
 
 
 def _lupus(b, rng, R):
-    """Discoid plaques: red, scaly, atrophic and depigmented centre, darker border."""
+    """Discoid lupus: an active rim, raised, violaceous red and darkened by melanin (near
+    black on brown skin), carrying adherent scale, around a scarred centre: atrophic,
+    depigmented, faintly shiny, with islands of pigment left in it, fine vessels and
+    follicular plugs (keratin in dilated follicle openings: white dots a few tenths of a
+    millimetre across, a millimetre or two apart)."""
     c = b.c
     sd = c.shape("round", R, aspect=rng.uniform(0.6, 1.0), irregular=0.25, warp=0.15)
     w = b.weight(sd, R * 0.2, "ill-defined")
-    centre = smoothstep(0, R * 0.6, sd)
-    b.erythema(w, rng.uniform(2.0, 3.5))
-    b.mix("melanin", w * (1 - centre), 2.0)                              # hyperpigmented rim
-    b.mix("melanin", centre, 0.3)                                        # depigmented centre
+    centre = smoothstep(0, R * rng.uniform(0.4, 0.7), sd)
+    rim = w * (1 - centre)
+    b.erythema(w * (0.6 + 0.4 * (1 - centre)), rng.uniform(2.0, 3.5), oxygen=rng.uniform(0.55, 0.7))
+    b.mix("melanin", rim, rng.uniform(1.5, 2.2))                         # hyperpigmented rim
+    residual = smoothstep(0.4, 1.0, c.noise(R * 0.35, 2))                # pigment left in the scar
+    b.mix("melanin", centre * (1 - 0.8 * residual), rng.uniform(0.05, 0.3))  # depigmented scar
+    vessels = (1 - smoothstep(0.0, 0.06, np.abs(c.noise(max(0.6, R / 12), 2)))) * centre
+    b.f["blood_add"] += 0.12 * vessels
     b.f["detail"] *= 1 - 0.7 * centre                                    # atrophy: smooth, shiny
-    b.f["gloss"] = np.maximum(b.f["gloss"], 0.4 * centre)
-    b.f["height"] -= 0.1 * centre
-    b.scale(w, 0.4, 0.8, "white")
+    b.f["gloss"] = np.maximum(b.f["gloss"], 0.25 * centre)
+    b.f["height"] += 0.12 * rim - 0.1 * centre
+    b.scale(rim, 0.35, 0.5, "white")                                     # adherent, on the rim
+    gap = rng.uniform(1.0, 2.0)
+    n = int(np.clip((2 * R / gap) ** 2, 8, 400))
+    plugs = arrange(c, "widespread", n, R, gap * 0.45)                 # irregularly spaced
+    if plugs:
+        radii = np.full(len(plugs), max(0.15, 0.8 * c.px)) * rng.uniform(0.8, 1.3, len(plugs))
+        plug_sd, _ = spots(c, plugs, radii)
+        dots = smoothstep(-c.px, c.px, plug_sd) * w
+        b.f["scale"] = np.maximum(b.f["scale"], 0.85 * dots)
+        b.f["height"] += 0.05 * dots
     b.outline(w, 0.35)
-    return {}
+    return {"follicular_plugs": len(plugs)}
 
 
 def _pyogenic_granuloma(b, rng, R):
