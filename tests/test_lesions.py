@@ -570,7 +570,7 @@ def test_scale_lies_in_plates_split_by_fissures():
     b = M.Builder(M.Canvas(np.random.default_rng(9), 256, 20.0))
     w = np.ones((256, 256), np.float32)
     b.scale(w, 1.0, 1.5)
-    wall, thickness = b._plates(1.5)
+    wall, thickness, _ = b._plates(1.5)
     cover = b.f["scale"]
     edge, inner = wall < 0.01, wall > 0.2
     assert cover[edge].mean() < 0.7 * cover[inner].mean()
@@ -578,6 +578,31 @@ def test_scale_lies_in_plates_split_by_fissures():
     n_plates = len(np.unique(thickness))
     assert 100 < n_plates < 300, n_plates
     assert 0.3 < (cover > 0.2).mean() < 0.95
+
+
+def test_heavy_scale_sheds_in_patches_of_whole_plates(rng):
+    """Where psoriatic scale has come off, it has come off over a patch of neighbouring
+    plates (single plates missing at random read as confetti): a shed plate's
+    neighbours are shed far more often than plates are overall."""
+    from glsynth.assets import morphology as M
+    ratios = []
+    for seed in rng.integers(2 ** 31, size=6):
+        b = M.Builder(M.Canvas(np.random.default_rng(int(seed)), 256, 20.0))
+        b.scale(np.ones((256, 256), np.float32), 0.8, 1.5)
+        wall, _, plate = b._plates(1.5)
+        inner = wall > 0.2
+        count = np.bincount(plate[inner], minlength=plate.max() + 1)
+        mean = np.bincount(plate[inner], b.f["scale"][inner], minlength=len(count)) / np.maximum(count, 1)
+        whole = count >= 10
+        shed = whole & (mean < 0.25)
+        a = np.concatenate([plate[:, :-1].ravel(), plate[:-1].ravel()])
+        c = np.concatenate([plate[:, 1:].ravel(), plate[1:].ravel()])
+        pairs = np.unique(np.stack([a, c], 1)[a != c], axis=0)
+        pairs = pairs[whole[pairs[:, 0]] & whole[pairs[:, 1]]]
+        assert 0.03 < shed[whole].mean() < 0.5
+        both = (shed[pairs[:, 0]] & shed[pairs[:, 1]]).sum() / shed[pairs[:, 0]].sum()
+        ratios.append(both / shed[whole].mean())
+    assert np.median(ratios) > 1.6, ratios
 
 
 def test_light_scale_is_a_haze_not_loose_dots(rng):

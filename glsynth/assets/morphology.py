@@ -269,16 +269,23 @@ class Builder:
         scale is nearly continuous, light scale lies in scattered flakes), thicker plates
         are whiter, and their edges lift (height)."""
         c = self.c
-        wall, thickness = self._plates(flake_mm)
+        wall, thickness, plate = self._plates(flake_mm)
         # not every edge has split: fissures come and go along the plate edges
         split = smoothstep(-0.6, 0.4, c.noise(flake_mm * 0.8, 2))
         fissure = 1 - split * (1 - smoothstep(0.015, 0.07, wall))
         # whole areas of the plaque hold more or less scale, over several flakes
         keep = coverage * (0.75 + 0.5 * smoothstep(-1.2, 1.2, c.noise(flake_mm * 4, 2)))
         grain = 0.85 + 0.15 * c.noise(flake_mm * 0.25, 2)
+        # scale sheds in patches a few plates wide, and thickens and thins smoothly across
+        # the plaque; plate to plate it differs only a little (each plate its own
+        # brightness, and single plates missing at random, read as confetti)
+        area = smoothstep(-1.0, 1.0, c.noise(flake_mm * 2.5, 2))
+        texels = np.bincount(plate.ravel())
+        plate_area = (np.bincount(plate.ravel(), area.ravel()) / np.maximum(texels, 1))[plate]  # whole plates shed
+        held = 0.35 * thickness + 0.65 * plate_area
         # light scale is thin as well as sparse: its flakes are more translucent
-        opacity = (0.4 + 0.45 * thickness) * (0.5 + 0.5 * coverage) * grain
-        plates = smoothstep(0.0, 0.2, keep - (1 - thickness)) * opacity
+        opacity = (0.55 + 0.2 * thickness + 0.2 * area) * (0.5 + 0.5 * coverage) * grain
+        plates = smoothstep(0.0, 0.2, keep - (1 - held)) * opacity
         flakes = plates * fissure
         # between the plates, a thin powdery film: light scale whitens a plaque as a
         # haze with a few flakes on it, not as loose bright dots on bare red skin
@@ -290,8 +297,8 @@ class Builder:
 
     def _plates(self, flake_mm):
         """(distance to the nearest plate edge over the plate size, each texel's plate
-        thickness in [0, 1]) of a tessellation into plates ``flake_mm`` wide, made once
-        per size for this condition."""
+        thickness in [0, 1], each texel's plate index) of a tessellation into plates
+        ``flake_mm`` wide, made once per size for this condition."""
         key = round(float(flake_mm), 4)
         if key not in self._plate_cache:
             from .detail import voronoi_walls
@@ -307,7 +314,7 @@ class Builder:
             edge, i = voronoi_walls(sites, np.stack([xx.ravel(), yy.ravel()], 1))
             thick = c.rng.random(m)[i]
             self._plate_cache[key] = ((edge / cell).reshape(n, n).astype(np.float32),
-                                      thick.reshape(n, n).astype(np.float32))
+                                      thick.reshape(n, n).astype(np.float32), i.reshape(n, n))
         return self._plate_cache[key]
 
     def crust(self, w, coverage, colour="honey"):
