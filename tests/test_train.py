@@ -232,6 +232,21 @@ def test_interrupted_training_resumes_to_the_same_weights(synth, tmp_path):
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".tmp-")]
 
 
+def test_planned_steps_are_fitted_to_the_time_once(synth, tmp_path):
+    """A plan far too long for its minutes is cut, after two epochs, to what the time
+    allows, and the run then ends at the fitted step with its schedule complete; a
+    resumed run keeps the fitted length."""
+    kw = dict(FAST, size=48, seed=5, batch_size=2)   # 2 batches per epoch
+    ck = train(synth, tmp_path / "m.pt", steps=1_000_000, fit_minutes=0.05, time_limit=5, **kw)
+    h = ck["hparams"]
+    assert h["fitted"] and 4 < h["steps"] < 1_000_000
+    assert ck["step"] == h["steps"] and ck["stopped"] is None
+    again = train(synth, tmp_path / "m.pt", resume=True, steps=1_000_000, fit_minutes=10, **kw)
+    assert again["hparams"]["steps"] == h["steps"] and again["step"] == h["steps"]
+    plain = train(synth, tmp_path / "p.pt", steps=6, **kw)   # no fitting asked: the plan stands
+    assert plain["step"] == 6 and not plain["hparams"]["fitted"]
+
+
 def test_weight_average_follows_its_recurrence_with_the_warm_up():
     from glsynth.train.trainer import WeightAverage
     net = torch.nn.Sequential(torch.nn.Linear(3, 2), torch.nn.BatchNorm1d(2))

@@ -14,8 +14,9 @@ augmentation. The share was set from that balance, not tuned against the real sc
 (tuning it to the 14 development photographs would only fit them). The data is made in parts of
 ``--bodies-per-part`` bodies (seed = config seed + part), each an ordinary
 ``glsynth generate`` folder, until the generation share is spent; the training length
-in steps is fixed from a short timing of real training steps, so that the learning-rate
-schedule ends with the budget.
+in steps is planned from a short timing of real training steps and fitted once more
+after two epochs of the run itself, so that the learning-rate schedule ends with the
+budget (the short timing alone misjudged long runs by up to a quarter).
 
 Resumable: each part, the training checkpoint and the plan live in ``OUT``; ``--resume``
 continues where a run stopped and spends what is left of the budget.
@@ -205,7 +206,8 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
         ck = train(folders, ckpt, size=size, batch_size=batch_size, lr=lr, device=device,
                    time_limit=max(train_budget, 1.0) * 1.05 / 60.0, resume=os.path.exists(ckpt),
                    seed=seed, width=width, depth=depth, val=val, val_layout=val_layout,
-                   steps=state["steps"], progress=progress, save_every=2.0)
+                   steps=state["steps"], fit_minutes=train_budget / 60.0, progress=progress,
+                   save_every=2.0)
         spent["train"] = spent.get("train", 0.0) + time.perf_counter() - t0
         _save_state(out, state)
     else:  # the budget is spent: evaluate what was trained

@@ -98,6 +98,9 @@ class TrainSet(torch.utils.data.Dataset):
             nevi = nevi.astype(np.uint8) if nevi.any() else None
             size = img.nbytes + seg.nbytes + anat.nbytes + (nevi.nbytes if nevi is not None else 0)
             if size <= self.cache_left:
+                for a in (img, seg, anat, nevi):
+                    if a is not None:
+                        a.flags.writeable = False   # shared by every later epoch: never edit
                 self.cache[i], self.cache_left = (img, seg, anat, nevi), self.cache_left - size
         if nevi is None:
             nevi = np.zeros(seg.shape, np.uint8)
@@ -265,7 +268,8 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
           device="cpu", time_limit=None, resume=False, seed=0, init=None, workers=0,
           width=1.0, depth=0, anatomy_weight=1.0, save_every=5.0, augment=True, progress=True,
           max_steps=None, val=None, val_layout="fitz17k", val_every=None, real_train=None,
-          real_layout="fitz17k", real_ratio=0.25, steps=None, ema=0.999, cache_gb=4.0):
+          real_layout="fitz17k", real_ratio=0.25, steps=None, ema=0.999, cache_gb=4.0,
+          fit_minutes=None):
     """Train and write the checkpoint `out`; returns the final checkpoint dict.
 
     data: one folder or a list of ``glsynth generate`` folders (may be empty with
@@ -280,6 +284,10 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
     val: a folder of real images (``val_layout``) scored every ``val_every`` steps
     (default: 8 times an epoch, at most every 250 steps) and at the end; the weights with
     the lowest validation loss are also written to ``best_path(out)``.
+    fit_minutes: with ``steps``, fit the run's length once to end within this many
+    minutes of this invocation's start, from the measured time of its second epoch (a
+    plan from a short timing misjudged long runs' steps by up to a quarter, so that
+    the time limit cut the schedule short or the budget went unused).
     cache_gb: memory for decoded synthetic samples (``TrainSet``).
     real_train: a folder of real training images mixed into every batch at
     ``real_ratio`` (staged training: ``init`` from a synthetic-pretrained checkpoint
@@ -300,10 +308,12 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
         size, batch_size, lr, weight_decay = h["size"], h["batch_size"], h["lr"], h["weight_decay"]
         seed, width, anatomy_weight, augment = h["seed"], h["width"], h["anatomy_weight"], h["augment"]
         depth, real_ratio = h.get("depth", 0), h.get("real_ratio", real_ratio)
-        steps, ema = h.get("steps", steps), h.get("ema", 0.0)
+        steps, ema, fitted = h.get("steps", steps), h.get("ema", 0.0), h.get("fitted", False)
+        fit_minutes = None if fitted else fit_minutes
     hparams = {"size": size, "batch_size": batch_size, "lr": lr, "weight_decay": weight_decay,
                "seed": seed, "width": width, "depth": depth, "anatomy_weight": anatomy_weight,
-               "augment": augment, "real_ratio": real_ratio, "steps": steps, "ema": ema}
+               "augment": augment, "real_ratio": real_ratio, "steps": steps, "ema": ema,
+               "fitted": ck is not None and fitted}
     if not 0 <= ema < 1:
         raise InputError(f"ema must be in [0, 1), got {ema}")
     torch.manual_seed(seed)
@@ -346,6 +356,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
     if val_every is None:
         val_every = max(1, min(250, math.ceil(n_batches / 8)))
     t0, last_save, steps_here = time.time(), time.time(), 0
+    epoch_ends = []   # (time, step) at the ends of this invocation's epochs
     stopped = None
     running = {"loss": [], "seg": [], "anatomy": []}
 
@@ -440,6 +451,14 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
                       f"(seg {history[-1]['seg']:.4f}, anatomy {history[-1]['anatomy']:.4f}) "
                       f"step {step}, {time.time() - t0:.0f} s", flush=True)
             running = {k: [] for k in running}
+            epoch_ends.append((time.time(), step))
+            if fit_minutes and steps is not None and len(epoch_ends) == 2 and step < total:
+                (ta, sa), (tb, sb) = epoch_ends
+                left = fit_minutes * 60 - (tb - t0)
+                total = max(step + 1, step + int(left * (sb - sa) / max(tb - ta, 1e-9)))
+                epochs, fit_minutes = math.ceil(total / n_batches), None
+                hparams.update(steps=total, fitted=True)
+                log.info("steps fitted to %.1f minutes: %d in all", left / 60, total)
             epoch, pos = (epoch + 1, 0) if pos >= n_batches else (epochs, pos)
         validate()
         final = state(stopped or "finished")
