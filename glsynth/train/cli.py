@@ -86,7 +86,7 @@ def register(sub):
                         "this decay (default 0.999, about the last 1,000 steps; 0: the last weights)")
     p.add_argument("--workers", type=int, default=0, help="data loader processes (default 0)")
     p.add_argument("--cache-gb", type=float, default=4.0, metavar="GB",
-                   help="keep up to GB of decoded training samples in memory (default 4; pays "
+                   help="keep up to GB of decoded training samples in memory (default 4; only "
                         "with --workers 0; 0: decode every sample every time)")
     p.add_argument("--save-every", type=float, default=5.0, metavar="MIN",
                    help="also checkpoint every MIN minutes within an epoch (default 5)")

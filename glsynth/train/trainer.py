@@ -318,7 +318,9 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
         raise InputError(f"ema must be in [0, 1), got {ema}")
     torch.manual_seed(seed)
     real = RealSet(real_train, real_layout, size) if real_train else None
-    ds = TrainSet(roots, size=size, seed=seed, augment=augment, real=real, cache_gb=cache_gb)
+    # loader processes start afresh each epoch, so a cache in them would only cost memory
+    ds = TrainSet(roots, size=size, seed=seed, augment=augment, real=real,
+                  cache_gb=cache_gb if workers == 0 else 0.0)
     validator = Validator(val, val_layout, size) if val else None
     model = SegNet(width=width, depth=depth)
     if ck is None and init:
