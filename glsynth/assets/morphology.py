@@ -280,9 +280,13 @@ class Builder:
         # the plaque; plate to plate it differs only a little (each plate its own
         # brightness, and single plates missing at random, read as confetti)
         area = smoothstep(-1.0, 1.0, c.noise(flake_mm * 2.5, 2))
-        texels = np.bincount(plate.ravel())
-        plate_area = (np.bincount(plate.ravel(), area.ravel()) / np.maximum(texels, 1))[plate]  # whole plates shed
-        held = 0.35 * thickness + 0.65 * plate_area
+        # which plates stay: ranked by their thickness and (mostly) the area they lie in,
+        # so whole plates shed in patches; the ranks are uniform, as thickness alone is,
+        # so that ``keep`` holds the same share of plates as before
+        texels = np.maximum(np.bincount(plate.ravel()), 1)
+        per_plate = (0.35 * np.bincount(plate.ravel(), thickness.ravel())
+                     + 0.65 * np.bincount(plate.ravel(), area.ravel())) / texels
+        held = (np.argsort(np.argsort(per_plate)) / max(len(per_plate) - 1, 1))[plate]
         # light scale is thin as well as sparse: its flakes are more translucent
         opacity = (0.55 + 0.2 * thickness + 0.2 * area) * (0.5 + 0.5 * coverage) * grain
         plates = smoothstep(0.0, 0.2, keep - (1 - held)) * opacity
