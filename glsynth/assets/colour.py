@@ -27,14 +27,15 @@ _ITA_BANDS = {1: (55.0, 90.0), 2: (41.0, 55.0), 3: (28.0, 41.0),
               4: (10.0, 28.0), 5: (-30.0, 10.0), 6: (-90.0, -30.0)}
 
 
-def shades_of_gray_gains(img: np.ndarray, p: float = 6) -> np.ndarray | None:
-    """Per-channel gains of Finlayson & Trezzi's Shades of Gray colour constancy.
+def shades_of_gray_table(img: np.ndarray, p: float = 6) -> np.ndarray:
+    """Finlayson & Trezzi's Shades of Gray colour constancy as a lookup table: 256 x 3
+    uint8, entry [v, c] the corrected value of level v in channel c.
 
     The illuminant is estimated per channel as the Minkowski p-mean
-    ``e_c = mean(I_c ** p) ** (1/p)``; gain_c scales channel c so that all three
-    estimates become equal (to their RMS, which keeps the overall brightness).
-    p=1 is Gray World, p=inf would be max-RGB. None when a channel is all zero (no
-    illuminant estimate is possible).
+    ``e_c = mean(I_c ** p) ** (1/p)`` and each channel is scaled so that all three
+    estimates become equal (to their RMS, which keeps the overall brightness), rounded
+    and clipped to [0, 255]. p=1 is Gray World, p=inf would be max-RGB. The identity
+    when a channel is all zero (no illuminant estimate is possible).
 
     img: HxWx3 uint8 RGB. The means come from each channel's 256-bin histogram, exactly
     as from the pixels and ~20x faster (training normalises every sample with this).
@@ -44,28 +45,24 @@ def shades_of_gray_gains(img: np.ndarray, p: float = 6) -> np.ndarray | None:
         raise ValueError(f"shades_of_gray expects HxWx3 uint8 RGB, got {img.dtype} {img.shape}")
     if p <= 0:
         raise ValueError(f"shades_of_gray: Minkowski norm p must be > 0, got {p}")
+    levels = np.arange(256, dtype=np.float64)
+    identity = np.repeat(levels[:, None], 3, 1).astype(np.uint8)
     if img.size == 0:
-        return None
+        return identity
     hist = np.stack([np.bincount(img[..., c].ravel(), minlength=256) for c in range(3)])
-    powers = np.power(np.arange(256, dtype=np.float64), p)
-    e = np.power(hist @ powers / (img.size // 3), 1.0 / p)
+    e = np.power(hist @ np.power(levels, p) / (img.size // 3), 1.0 / p)
     if np.any(e <= 0):
-        return None
-    return np.sqrt(np.mean(e ** 2)) / e
+        return identity
+    gain = np.sqrt(np.mean(e ** 2)) / e
+    return np.clip(np.rint(levels[:, None] * gain), 0, 255).astype(np.uint8)
 
 
 def shades_of_gray(img: np.ndarray, p: float = 6) -> np.ndarray:
-    """Shades of Gray colour constancy (``shades_of_gray_gains``) applied: each channel
-    scaled by its gain, rounded and clipped to [0, 255].
+    """Shades of Gray colour constancy (``shades_of_gray_table``) applied.
 
-    img: HxWx3 uint8 RGB. Returns HxWx3 uint8 RGB (a copy of ``img`` when a channel is
-    all zero).
+    img: HxWx3 uint8 RGB. Returns HxWx3 uint8 RGB, a new array.
     """
-    gain = shades_of_gray_gains(img, p)
-    if gain is None:
-        return np.array(img, copy=True)
-    levels = np.arange(256, dtype=np.float64)[:, None]
-    lut = np.clip(np.rint(levels * gain), 0, 255).astype(np.uint8)   # 256 x 3
+    lut = shades_of_gray_table(img, p)
     return np.ascontiguousarray(np.stack([lut[img[..., c], c] for c in range(3)], -1))
 
 

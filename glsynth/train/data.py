@@ -21,7 +21,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..assets.colour import shades_of_gray_gains
+from ..assets.colour import shades_of_gray_table
 
 MEAN = np.array([0.485, 0.456, 0.406], np.float32)
 STD = np.array([0.229, 0.224, 0.225], np.float32)
@@ -32,10 +32,8 @@ def normalise(rgb_uint8: np.ndarray) -> np.ndarray:
     """HxWx3 uint8 RGB -> 3xHxW float32, Shades of Gray then ImageNet normalisation,
     through one 256-entry table per channel (the same values as ``shades_of_gray``
     followed by the arithmetic, at a fraction of the cost)."""
-    gain = shades_of_gray_gains(rgb_uint8)
-    levels = np.arange(256, dtype=np.float64)[:, None]
-    corrected = levels if gain is None else np.clip(np.rint(levels * gain), 0, 255)
-    table = ((corrected.astype(np.float32) / 255.0 - MEAN) / STD).astype(np.float32)  # 256 x 3
+    corrected = shades_of_gray_table(rgb_uint8).astype(np.float32)
+    table = ((corrected / 255.0 - MEAN) / STD).astype(np.float32)  # 256 x 3
     return np.stack([table[rgb_uint8[..., c], c] for c in range(3)])
 
 

@@ -299,7 +299,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
         raise UnavailableError("--device cuda: CUDA is not available")
     if not 0 <= real_ratio <= 1:
         raise InputError(f"real_ratio must be in [0, 1], got {real_ratio}")
-    ck = None
+    ck, fitted = None, False
     if os.path.exists(out):
         if not resume:
             raise FileExistsError(f"{out} exists; pass --resume to continue it or choose another --out")
@@ -313,7 +313,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
     hparams = {"size": size, "batch_size": batch_size, "lr": lr, "weight_decay": weight_decay,
                "seed": seed, "width": width, "depth": depth, "anatomy_weight": anatomy_weight,
                "augment": augment, "real_ratio": real_ratio, "steps": steps, "ema": ema,
-               "fitted": ck is not None and fitted}
+               "fitted": fitted}
     if not 0 <= ema < 1:
         raise InputError(f"ema must be in [0, 1), got {ema}")
     torch.manual_seed(seed)
