@@ -299,8 +299,8 @@ class ViewsConfig:
                                      "(a telephoto lens or a crop) down to this (degrees)",
                                      within=Interval(0.5, 179))
     closeup_flash: float = key(0.6, "close-ups: probability of a flash", within=between(0, 1))
-    regional_fill: list = key([0.6, 1.2], "regional views: body part size (the geometric mean of its "
-                              "extents along and across its main axis) / frame width",
+    regional_fill: list = key([0.9, 1.8], "regional views: body part width (its extent across its "
+                              "main axis) / frame width",
                               pair=between(0.05, 10))
     regional_lesion: float = key(0.8, "regional views: probability of framing the part that holds a "
                                  "lesion, centred near it", within=between(0, 1))

@@ -350,10 +350,10 @@ def test_multi_lesion_conditions_give_one_instance_each_with_exact_boxes(tmp_pat
 
 
 def test_regional_views_frame_the_affected_part_by_its_size(rng):
-    """A regional view frames a body part by its size (the geometric mean of its length
-    and width over views.regional_fill gives the frame width), so a limb fills the frame
-    rather than floating in background; with views.regional_lesion it is the part holding
-    a lesion, centred at the lesion."""
+    """A regional view frames a body part by its width (its width over
+    views.regional_fill gives the frame width), so a limb fills the frame rather than
+    floating in background; with views.regional_lesion it is the part holding a lesion,
+    centred at the lesion."""
     from types import SimpleNamespace
     from glsynth.pipeline import views as V
     # two flat rectangular parts: 1 (0.4 x 0.1 m, a forearm) and 2 (0.6 x 0.3 m, a trunk)
@@ -370,15 +370,15 @@ def test_regional_views_frame_the_affected_part_by_its_size(rng):
     body = SimpleNamespace(mesh=mesh)
     site_pts = np.array([[0.30, 0.05, 0.0], [0.31, 0.05, 0.0]])
     site = V.LesionSite(site_pts, np.tile([0.0, 0.0, 1.0], (2, 1)), 1e-4)
-    fill = rng.uniform(0.6, 1.2)
+    fill = rng.uniform(0.9, 1.8)
     v = small_config(f"views.regional_fill=[{fill}, {fill}]", "views.regional_lesion=1").views
     point, normal, direction, w, centre, fov = V._regional_camera(body, [site], rng, v)
     assert centre == "lesion 1" and any(np.allclose(point, p) for p in site_pts)
-    np.testing.assert_allclose(w, np.sqrt(0.4 * 0.1) / fill / (2 * np.tan(np.radians(fov) / 2)), rtol=1e-6)
-    # without the lesion preference: a part by area, near its middle, framed by its size
+    np.testing.assert_allclose(w, 0.1 / fill / (2 * np.tan(np.radians(fov) / 2)), rtol=1e-6)
+    # without the lesion preference: a part by area, near its middle, framed by its width
     v0 = dataclasses.replace(v, regional_lesion=0.0)
     for _ in range(10):
         point, _, _, w, centre, fov = V._regional_camera(body, [site], rng, v0)
         assert centre.startswith("part ")
-        size = np.sqrt(0.4 * 0.1) if centre == "part 1" else np.sqrt(0.6 * 0.3)
-        np.testing.assert_allclose(w, size / fill / (2 * np.tan(np.radians(fov) / 2)), rtol=1e-6)
+        width = 0.1 if centre == "part 1" else 0.3
+        np.testing.assert_allclose(w, width / fill / (2 * np.tan(np.radians(fov) / 2)), rtol=1e-6)

@@ -134,9 +134,9 @@ def _closeup_camera(lesion_sites, rng, v):
 
 
 def _regional_camera(body, lesion_sites, rng, v):
-    """A body part filling the frame: its size (the geometric mean of its extents along
-    and across its main axis) over the frame width in views.regional_fill, seen along the
-    normal. With probability views.regional_lesion (when the body has lesions) the part
+    """A body part filling the frame: its width (its extent across its main axis) over the
+    frame width in views.regional_fill, seen along the normal, so that a limb or the
+    trunk runs across the whole frame as in a clinician's photograph of a region. With probability views.regional_lesion (when the body has lesions) the part
     is the one holding a lesion, centred near the lesion, as a clinician photographs an
     affected region; otherwise a part drawn by area, centred near its middle."""
     mesh, labels = body.mesh, body.mesh.vertex_labels
@@ -159,13 +159,13 @@ def _regional_camera(body, lesion_sites, rng, v):
     pts = mesh.vertices[idx]
     c = pts.mean(0)
     axes = np.linalg.svd(pts - c, full_matrices=False)[2]
-    size = float(np.sqrt(np.ptp((pts - c) @ axes[0]) * np.ptp((pts - c) @ axes[1])))
+    width = float(np.ptp((pts - c) @ axes[1]))
     if centre is None:
         near = idx[np.argsort(np.sum((pts - c) ** 2, axis=1))[:max(1, len(idx) // 4)]]
         i = int(rng.choice(near))
         point, normal, centre = mesh.vertices[i], mesh.vertex_normals[i], f"part {int(k)}"
     fill = rng.uniform(*v.regional_fill)
-    w = size / fill / (2 * np.tan(np.radians(v.fov_deg) / 2))
+    w = width / fill / (2 * np.tan(np.radians(v.fov_deg) / 2))
     return point, normal, normal, float(w), centre, v.fov_deg
 
 
