@@ -10,7 +10,8 @@
 // With DETAIL, micro-detail that no body texture could hold (glsynth.assets.detail):
 // the relief tile projected from the world position along the two axes nearest the
 // normal, at two scales (furrows and pores as a normal perturbation and cavity
-// darkening), and with HAIR, hair strands from the hair tile in per-vertex hair-flow
+// darkening), the mesoscale tile along the same axes (undulation and mottling at
+// millimetres to centimetres), and with HAIR, hair strands from the hair tile in per-vertex hair-flow
 // coordinates, shaded as fibres (Kajiya-Kay) and casting
 // a short parallax shadow, and wrinkles from the crease tile laid across the hair flow. Both are scaled by the per-body skin parameters (u_params)
 // and by the texture's alpha, the detail weight: 0 on non-skin, so clothing, scalp hair
@@ -54,6 +55,9 @@ uniform float u_relief_amount;     // scales the relief (Material.relief)
 uniform float u_pore_mean;         // mean of the relief tile's pore channel
 uniform float u_macro_scale;       // the tile's second, coarser reading (detail.MACRO_SCALE)
 uniform float u_macro_weight;      // and its share at relief level 0.5 (detail.MACRO_WEIGHT)
+uniform sampler2D u_meso;          // mesoscale tile (half floats): RG slope, B melanin, A blood
+uniform float u_meso_period;
+uniform float u_meso_size;
 #endif
 #if HAIR
 uniform sampler2D u_hair;          // hair tile: RG terminal, BA vellus coverage
@@ -82,12 +86,16 @@ out vec4 out_color;
 #endif
 
 #if DETAIL
-// The relief tile projected along world axis ``i`` at point p: its texel, and the world
-// directions of the tile's u and v
-vec4 relief_along(int i, vec3 p, float lod, out vec3 eu, out vec3 ev) {
+// The world directions of a tile's u and v projected along world axis ``i``
+void tile_axes(int i, out vec3 eu, out vec3 ev) {
     eu = i == 0 ? vec3(0.0, 0.0, 1.0) : vec3(1.0, 0.0, 0.0);
     ev = i == 1 ? vec3(0.0, 0.0, 1.0) : vec3(0.0, 1.0, 0.0);
-    return textureLod(u_relief, vec2(dot(p, eu), dot(p, ev)) / u_relief_period, lod);
+}
+
+// A tile's texel at point p, projected along the axes (eu, ev); none where the
+// projection's weight is 0 (half the lookups wherever one projection suffices)
+vec4 tile_at(sampler2D tile, float weight, vec3 p, vec3 eu, vec3 ev, float period, float lod) {
+    return weight > 0.0 ? textureLod(tile, vec2(dot(p, eu), dot(p, ev)) / period, lod) : vec4(0.0);
 }
 #endif
 
@@ -142,9 +150,13 @@ void main() {
     w *= w;
     w *= w;
     w = w.x + w.y > 1e-12 ? w / (w.x + w.y) : vec2(0.5);
+    // a projection with under 0.2% of the weight is left out (on most of the body)
+    w = w.y < 0.002 ? vec2(1.0, 0.0) : (w.x < 0.002 ? vec2(0.0, 1.0) : w);
     vec3 u1, v1, u2, v2;
-    vec4 p1 = relief_along(i1, world, lod, u1, v1);
-    vec4 p2 = relief_along(i2, world, lod, u2, v2);
+    tile_axes(i1, u1, v1);
+    tile_axes(i2, u2, v2);
+    vec4 p1 = tile_at(u_relief, w.x, world, u1, v1, u_relief_period, lod);
+    vec4 p2 = tile_at(u_relief, w.y, world, u2, v2, u_relief_period, lod);
     // the same tile u_macro_scale times larger, offset: coarser furrows across several
     // plateaus, and the sum of two incommensurate periods does not repeat. They deepen
     // as the square of the relief level (0.5 on most skin): the coarse criss-cross
@@ -153,8 +165,8 @@ void main() {
     float macro_w = u_macro_weight * min(level * level, 2.0);
     vec3 macro_at = world / u_macro_scale + vec3(0.37, 0.61, 0.23) * u_relief_period;
     float macro_lod = lod - log2(u_macro_scale);
-    p1.rgb += macro_w * relief_along(i1, macro_at, macro_lod, u1, v1).rgb;
-    p2.rgb += macro_w * relief_along(i2, macro_at, macro_lod, u2, v2).rgb;
+    p1.rgb += macro_w * tile_at(u_relief, w.x, macro_at, u1, v1, u_relief_period, macro_lod).rgb;
+    p2.rgb += macro_w * tile_at(u_relief, w.y, macro_at, u2, v2, u_relief_period, macro_lod).rgb;
     // at relief level 1 (0.5 in the map, most skin) the tile's own depths; lichenified
     // skin (detail weight above 1) deepens it
     float relief = level * u_relief_amount * max(detail_weight, 1.0);
@@ -166,6 +178,28 @@ void main() {
     float tone = dot(w, vec2(p1.b, p2.b));
     float pore = dot(w, vec2(p1.a, p2.a));
     albedo *= (1.0 + min(relief, 1.0) * tone) * (1.0 - 0.6 * prm.g * (pore - u_pore_mean));
+    // the mesoscale tile along the same axes: the surface's soft undulation, and melanin
+    // and blood mottling as absorbance (melanin absorbs more towards blue, blood in
+    // green; blood shows less through more melanin, as in glsynth.assets.skin)
+    float mlod = log2(max(footprint / u_meso_period * u_meso_size, 1e-6));
+    // (its smooth features hide a quicker crossfade between the projections: weights
+    // to the 16th power of the axes' lead, so that most pixels need one lookup)
+    vec2 wm = w * w;
+    wm *= wm;
+    wm /= wm.x + wm.y;
+    wm = wm.y < 0.002 ? vec2(1.0, 0.0) : (wm.x < 0.002 ? vec2(0.0, 1.0) : wm);
+    vec4 m1 = tile_at(u_meso, wm.x, world, u1, v1, u_meso_period, mlod);
+    vec4 m2 = tile_at(u_meso, wm.y, world, u2, v2, u_meso_period, mlod);
+    // (faded out from 2 to 6 mm per pixel, mip levels 3.4-5: its centimetre undulation
+    // would otherwise vary from pixel to pixel in far views)
+    float meso = 1.0 - smoothstep(3.4, 5.0, mlod);
+    m1 *= meso;
+    m2 *= meso;
+    grad += relief * (wm.x * (m1.r * u1 + m1.g * v1) + wm.y * (m2.r * u2 + m2.g * v2));
+    float pigment = dot(wm, vec2(m1.b, m2.b)), blood = dot(wm, vec2(m1.a, m2.a));
+    float blood_shows = clamp(3.0 * albedo.g, 0.3, 1.0);
+    albedo *= exp(-min(detail_weight, 1.0) * (pigment * vec3(0.6, 0.85, 1.0)
+                                              + blood_shows * blood * vec3(0.1, 1.0, 0.6)));
 #if HAIR
     // hair-flow frame of this face: dp/ds (along the hairs) and dp/dt
     mat2 dh = mat2(g_hair[1] - g_hair[0], g_hair[2] - g_hair[0]);

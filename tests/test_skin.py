@@ -140,7 +140,7 @@ def test_a_flash_at_the_lens_gives_no_nan(renderer, rng):
 
 def test_tiles_wrap_seamlessly():
     t = detail.detail_tiles()
-    for tile in (t.relief, t.hair, t.crease):
+    for tile in (t.relief, t.hair, t.crease, t.meso):
         x = tile.astype(np.float32)
         inner = np.abs(np.diff(x, axis=1)).mean()
         across = np.abs(x[:, 0] - x[:, -1]).mean()       # the step from the last column to the first
@@ -148,10 +148,11 @@ def test_tiles_wrap_seamlessly():
         inner = np.abs(np.diff(x, axis=0)).mean()
         across = np.abs(x[0] - x[-1]).mean()
         assert across < 2 * inner + 1.0
-    for tile in (t.relief, t.crease):
+    for tile in (t.relief, t.crease, t.meso):
         r = tile.astype(np.float64)
         assert np.abs(r[..., :2].mean((0, 1))).max() < 1e-3   # no tilt on average
         assert abs(r[..., 2].mean()) < 1e-3                    # albedo change averages to 0
+    assert abs(t.meso[..., 3].astype(np.float64).mean()) < 1e-3   # and so does the blood mottle
 
 
 def _surface_per_hair_coordinate(v, f, hc):

@@ -27,6 +27,14 @@ views see their average and close-ups their structure:
   reads it as it is (fine wrinkles ~1.3 mm apart) and ``COARSE_CREASE_SCALE`` times
   larger (deep creases a few millimetres apart). Half floats: R, G the height slope
   along x and y, B the relative albedo change (mean 0), A unused.
+* the **mesoscale tile** (``MESO_PERIOD`` metres square) holds what lies between the
+  relief tile and the body texture's texels: the soft undulation of the skin over fat,
+  muscle, tendons and veins (features ~6-30 mm, a few degrees of slope) and mottling of
+  pigment and of the superficial vascular plexus at 1-6 mm. Without it a close-up of a
+  hand's width of skin is evenly lit and evenly coloured between the furrows: in the
+  dev photographs, healthy skin's luminance varies 2-3x as much at 1-5 mm as in our
+  close-ups. Half floats: R, G the height slope, B the melanin mottle and A the blood
+  mottle (relative absorbance changes, mean 0), projected like the relief tile.
 
 All three are made from a seed with numpy/OpenCV in a few seconds and kept per process.
 Heights and sizes are in micrometres, from the dermatology literature's orders of
@@ -51,6 +59,8 @@ MACRO_WEIGHT = 0.2        # its share at relief level 0.5 (the shader: times (le
 CREASE_PERIOD = 0.024     # metres covered by one crease tile
 CREASE_SIZE = 1024        # texels (23 um each)
 COARSE_CREASE_SCALE = 3.3  # the crease tile's second reading: deep creases
+MESO_PERIOD = 0.096       # metres covered by one mesoscale tile
+MESO_SIZE = 512           # texels (0.19 mm each)
 # skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
 # only, moderate sebum (RGBA: relief, pores, hair density, oiliness)
 DEFAULT_PARAMS = (140, 80, 64, 100)
@@ -58,14 +68,16 @@ DEFAULT_PARAMS = (140, 80, 64, 100)
 
 @dataclass(frozen=True)
 class DetailTiles:
-    """The three tiles (relief and crease float16 RGBA, hair uint8 RGBA; row 0 = tile
-    y 0) and their physical periods."""
+    """The four tiles (relief, crease and mesoscale float16 RGBA, hair uint8 RGBA; row 0 =
+    tile y 0) and their physical periods."""
     relief: np.ndarray
     hair: np.ndarray
     crease: np.ndarray
+    meso: np.ndarray
     relief_period: float = RELIEF_PERIOD
     hair_period: float = HAIR_PERIOD
     crease_period: float = CREASE_PERIOD
+    meso_period: float = MESO_PERIOD
 
 
 def _periodic_noise(rng, size, feature_px):
@@ -199,6 +211,24 @@ def _crease_tile(seed=0, size=CREASE_SIZE, period=CREASE_PERIOD):
     return np.stack([gx, gy, shade, np.zeros_like(shade)], -1).astype(np.float16)
 
 
+def _meso_tile(seed=0, size=MESO_SIZE, period=MESO_PERIOD, slope=0.12, pigment=0.08, blood=0.08):
+    """Soft undulation (RMS slope ``slope``) and mottling of melanin and blood (RMS
+    relative absorbance ``pigment``, ``blood``), each the sum of a coarse and a fine
+    octave so that no single size shows."""
+    rng = np.random.default_rng([seed, 4])
+    mm = period * 1e3 / size                                          # mm per texel
+    height = _periodic_noise(rng, size, 22 / mm) + 0.3 * _periodic_noise(rng, size, 7 / mm)
+    gx, gy = _slopes(height, mm)
+    rms = np.sqrt(np.mean(gx ** 2 + gy ** 2))
+    gx, gy = gx * slope / rms, gy * slope / rms
+    mel = _periodic_noise(rng, size, 4 / mm) + 0.7 * _periodic_noise(rng, size, 1.5 / mm)
+    vessels = _periodic_noise(rng, size, 6 / mm) + 0.6 * _periodic_noise(rng, size, 2 / mm)
+    mel, vessels = (x - x.mean() for x in (mel, vessels))
+    mel *= pigment / mel.std()
+    vessels *= blood / vessels.std()
+    return np.stack([gx, gy, mel, vessels], -1).astype(np.float16)
+
+
 def _draw_strands(canvas, rng, n, length_mm, width_um, spread_deg, curl, um, period_px):
     """Tapered, curved strands lying along +x, wrapped around the tile; each strand's
     coverage between 0.6 and 1 (thin and light hairs let some skin through)."""
@@ -243,6 +273,6 @@ def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
 
 @lru_cache(maxsize=2)
 def detail_tiles(seed: int = 0) -> DetailTiles:
-    """The relief, hair and crease tiles for ``seed``, made once per process (~5 s on 2
-    cores, ~2.7 s of it the relief, ~1.5 s the creases)."""
-    return DetailTiles(_relief_tile(seed), _hair_tile(seed), _crease_tile(seed))
+    """The relief, hair, crease and mesoscale tiles for ``seed``, made once per process
+    (~5 s on 2 cores, ~2.7 s of it the relief, ~1.5 s the creases)."""
+    return DetailTiles(_relief_tile(seed), _hair_tile(seed), _crease_tile(seed), _meso_tile(seed))

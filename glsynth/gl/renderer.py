@@ -30,8 +30,8 @@ PASSES = ("gbuffer", "rgb", "labels")
 GBUFFER_LAYERS = ("face_id", "depth", "bary", "uv")
 MAX_LABEL_MAPS = 4  # one four-channel uint16 target
 # texture units: 0 colour, 1 shadow map, 2-5 label maps, then the skin shading's
-# parameter map, relief tile, hair tile and crease tile
-SKIN_UNITS = (6, 7, 8, 9)
+# parameter map, relief tile, hair tile, crease tile and (after the decals') mesoscale tile
+SKIN_UNITS = (6, 7, 8, 9, 15)
 # lesion decals (shaders/decal.glsl): region map, per-decal info, colour, aux, ids
 DECAL_UNITS = {"u_decal_region": 10, "u_decal_info": 11, "u_decal_colour": 12, "u_decal_aux": 13,
                "u_decal_ids": 14}
@@ -400,19 +400,20 @@ class Renderer:
             vert = with_defines(vert, SHADOWS=shadows, **({"HAIR_COORDS": 1} if hair else {}))
             prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
             _set_units(prog, {"u_shadow_map": 1, "u_params": SKIN_UNITS[0], "u_relief": SKIN_UNITS[1],
-                              "u_hair": SKIN_UNITS[2], "u_crease": SKIN_UNITS[3], **DECAL_UNITS})
+                              "u_hair": SKIN_UNITS[2], "u_crease": SKIN_UNITS[3], "u_meso": SKIN_UNITS[4],
+                              **DECAL_UNITS})
             self.programs[key] = prog
         return key
 
     def _detail_tiles(self):
-        """The relief, hair and crease tiles (glsynth.assets.detail) as repeating, mipmapped
+        """The relief, hair, crease and mesoscale tiles (glsynth.assets.detail) as repeating, mipmapped
         textures, made on first use; and a 1x1 skin parameter map for meshes without
         a SkinSurface."""
         if self._tiles is None:
             from ..assets.detail import DEFAULT_PARAMS, detail_tiles
             t = detail_tiles()
             out = {}
-            for name, img in (("relief", t.relief), ("hair", t.hair), ("crease", t.crease)):
+            for name, img in (("relief", t.relief), ("hair", t.hair), ("crease", t.crease), ("meso", t.meso)):
                 tex = self.ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(img).tobytes(),
                                        dtype="f2" if img.dtype == np.float16 else "f1")
                 tex.build_mipmaps()
@@ -688,12 +689,14 @@ class Renderer:
             tiles["relief"].use(SKIN_UNITS[1])
             tiles["hair"].use(SKIN_UNITS[2])
             tiles["crease"].use(SKIN_UNITS[3])
+            tiles["meso"].use(SKIN_UNITS[4])
             values.update(u_relief_period=t.relief_period * unit, u_relief_size=float(t.relief.shape[0]),
                           u_pore_mean=tiles["pore_mean"], u_macro_scale=MACRO_SCALE,
                           u_macro_weight=MACRO_WEIGHT, u_hair_period=t.hair_period * unit,
                           u_hair_size=float(t.hair.shape[0]), u_unit=unit,
                           u_crease_period=t.crease_period * unit, u_crease_size=float(t.crease.shape[0]),
-                          u_coarse_crease_scale=COARSE_CREASE_SCALE)
+                          u_coarse_crease_scale=COARSE_CREASE_SCALE, u_meso_period=t.meso_period * unit,
+                          u_meso_size=float(t.meso.shape[0]))
             if mesh.skin is not None:
                 values["u_hair_rgb"] = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
         _set_uniforms(prog, values)
@@ -950,7 +953,7 @@ class Renderer:
             self._release_fbo(fbo)
         self._fbos.clear()
         if self._tiles is not None:
-            for name in ("relief", "hair", "crease", "params"):
+            for name in ("relief", "hair", "crease", "meso", "params"):
                 self._tiles[name].release()
             self._tiles = None
 
