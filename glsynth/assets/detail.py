@@ -211,7 +211,7 @@ def _crease_tile(seed=0, size=CREASE_SIZE, period=CREASE_PERIOD):
     return np.stack([gx, gy, shade, np.zeros_like(shade)], -1).astype(np.float16)
 
 
-def _meso_tile(seed=0, size=MESO_SIZE, period=MESO_PERIOD, slope=0.12, pigment=0.08, blood=0.08):
+def _meso_tile(seed=0, size=MESO_SIZE, period=MESO_PERIOD, slope=0.12, pigment=0.08, blood=0.1):
     """Soft undulation (RMS slope ``slope``) and mottling of melanin and blood (RMS
     relative absorbance ``pigment``, ``blood``), each the sum of a coarse and a fine
     octave so that no single size shows."""
@@ -223,9 +223,11 @@ def _meso_tile(seed=0, size=MESO_SIZE, period=MESO_PERIOD, slope=0.12, pigment=0
     gx, gy = gx * slope / rms, gy * slope / rms
     mel = _periodic_noise(rng, size, 4 / mm) + 0.7 * _periodic_noise(rng, size, 1.5 / mm)
     vessels = _periodic_noise(rng, size, 6 / mm) + 0.6 * _periodic_noise(rng, size, 2 / mm)
-    mel, vessels = (x - x.mean() for x in (mel, vessels))
-    mel *= pigment / mel.std()
-    vessels *= blood / vessels.std()
+    mel = (mel - mel.mean()) * pigment / mel.std()
+    # blood only adds: skin with less blood than its base colour would turn green (the
+    # body texture's redness follows the same rule); mean 0 over the tile again
+    vessels = np.maximum(vessels - vessels.mean(), 0.0) * blood / vessels.std()
+    vessels -= vessels.mean()
     return np.stack([gx, gy, mel, vessels], -1).astype(np.float16)
 
 
