@@ -11,11 +11,11 @@
 // the relief tile projected from the world position along the two axes nearest the
 // normal, at two scales (furrows and pores as a normal perturbation and cavity
 // darkening), the mesoscale tile along the same axes (undulation and mottling at
-// millimetres to centimetres), and with HAIR, hair strands from the hair tile in per-vertex hair-flow
-// coordinates, shaded as fibres (Kajiya-Kay) and casting
-// a short parallax shadow, and wrinkles from the crease tile laid across the hair flow. Both are scaled by the per-body skin parameters (u_params)
-// and by the texture's alpha, the detail weight: 0 on non-skin, so clothing, scalp hair
-// and eyes get none. Tiles are sampled at an explicit level of detail from the pixel's
+// millimetres to centimetres), and with HAIR, hair strands from the hair tile in
+// per-vertex hair-flow coordinates, shaded as fibres (Kajiya-Kay) and casting a short
+// parallax shadow, and wrinkles from the crease tile laid across the hair flow. All are
+// scaled by the per-body skin parameters (u_params) and by the texture's alpha, the
+// detail weight: 0 on non-skin, so clothing, scalp hair and eyes get none. Tiles are sampled at an explicit level of detail from the pixel's
 // footprint on the surface, so far views see their average and never alias.
 #ifndef NUM_LIGHTS
 #define NUM_LIGHTS 1
@@ -188,13 +188,11 @@ void main() {
     wm *= wm;
     wm /= wm.x + wm.y;
     wm = wm.y < 0.002 ? vec2(1.0, 0.0) : (wm.x < 0.002 ? vec2(0.0, 1.0) : wm);
-    vec4 m1 = tile_at(u_meso, wm.x, world, u1, v1, u_meso_period, mlod);
-    vec4 m2 = tile_at(u_meso, wm.y, world, u2, v2, u_meso_period, mlod);
-    // (faded out from 2 to 6 mm per pixel, mip levels 3.4-5: its centimetre undulation
-    // would otherwise vary from pixel to pixel in far views)
+    // (faded out from 2 to 6 mm per pixel, mip levels 3.4-5, and not read beyond: its
+    // centimetre undulation would otherwise vary from pixel to pixel in far views)
     float meso = 1.0 - smoothstep(3.4, 5.0, mlod);
-    m1 *= meso;
-    m2 *= meso;
+    vec4 m1 = meso * tile_at(u_meso, meso * wm.x, world, u1, v1, u_meso_period, mlod);
+    vec4 m2 = meso * tile_at(u_meso, meso * wm.y, world, u2, v2, u_meso_period, mlod);
     grad += relief * (wm.x * (m1.r * u1 + m1.g * v1) + wm.y * (m2.r * u2 + m2.g * v2));
     float pigment = dot(wm, vec2(m1.b, m2.b)), blood = dot(wm, vec2(m1.a, m2.a));
     float blood_shows = clamp(3.0 * albedo.g, 0.3, 1.0);
