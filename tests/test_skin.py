@@ -152,7 +152,10 @@ def test_tiles_wrap_seamlessly():
         r = tile.astype(np.float64)
         assert np.abs(r[..., :2].mean((0, 1))).max() < 1e-3   # no tilt on average
         assert abs(r[..., 2].mean()) < 1e-3                    # albedo change averages to 0
-    assert abs(t.meso[..., 3].astype(np.float64).mean()) < 1e-3   # and so does the blood mottle
+    blood = t.meso[..., 3].astype(np.float64)
+    assert abs(blood.mean()) < 1e-3                            # and so does the blood mottle,
+    # which only adds redness: the half of the noise below its mean is cut to one floor
+    assert np.mean(blood == blood.min()) > 0.4 and np.ptp(blood) > 0.1
 
 
 def _surface_per_hair_coordinate(v, f, hc):

@@ -36,7 +36,7 @@ views see their average and close-ups their structure:
   close-ups. Half floats: R, G the height slope, B the melanin mottle and A the blood
   mottle (relative absorbance changes, mean 0), projected like the relief tile.
 
-All three are made from a seed with numpy/OpenCV in a few seconds and kept per process.
+All four are made from a seed with numpy/OpenCV in a few seconds and kept per process.
 Heights and sizes are in micrometres, from the dermatology literature's orders of
 magnitude: primary furrows 20-100 um deep and 0.2-1 mm apart, follicular openings
 50-150 um, terminal hairs 50-100 um thick and vellus hairs under 30 um.
