@@ -7,7 +7,7 @@ eroded by 6 px, so lesion borders and silhouettes stay out), L*, a* and b* are s
 with mask-normalised Gaussians of sigma 3, 12 and 48 px, and the standard deviation of the
 differences 3-12 px ("fine": 0.3-1.2 mm in a 5 cm close-up) and 12-48 px ("coarse":
 1.2-5 mm) is taken. Prints the median over images of each, for the real folder (fitz17k
-layout: the image, ``lesions.png``, ``nonskin.png``) and for each glsynth dataset by
+layout, read as ``glsynth evaluate`` reads it) and for each glsynth dataset by
 framing (``camera.framing`` in the per-view JSON).
 """
 from __future__ import annotations
@@ -19,24 +19,26 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-MASKS = ("lesions", "nonskin", "selected_lesion")
+from glsynth.dataformat import SEMANTIC_SKIN
+from glsynth.io.images import read_image, read_rgb
+from glsynth.train.evaluate import CLASSES, read_real
 
 
 def _blur(x, m, sigma):
     return cv2.GaussianBlur(x * m, (0, 0), sigma) / np.maximum(cv2.GaussianBlur(m, (0, 0), sigma), 1e-6)
 
 
-def band_stats(img_bgr, skin):
+def band_stats(rgb, skin):
     """(L fine, L coarse, a fine, a coarse, b fine, b coarse), or None with too little skin."""
     h, w = skin.shape
     k = 512 / max(h, w)
     size = (round(w * k), round(h * k))
-    img = cv2.resize(img_bgr, size, interpolation=cv2.INTER_AREA)
+    img = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
     skin = cv2.resize(skin.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
     m = cv2.erode(skin, np.ones((13, 13), np.uint8)).astype(np.float32)
     if m.sum() < 2000:
         return None
-    lab = cv2.cvtColor(img.astype(np.float32) / 255, cv2.COLOR_BGR2LAB)
+    lab = cv2.cvtColor(img.astype(np.float32) / 255, cv2.COLOR_RGB2LAB)
     sel = m > 0
     out = []
     for c in range(3):
@@ -47,15 +49,8 @@ def band_stats(img_bgr, skin):
 
 def real_rows(folder: Path):
     rows = []
-    for d in sorted(p for p in folder.iterdir() if p.is_dir()):
-        images = [f for f in d.iterdir() if f.stem not in MASKS and f.suffix.lower() in (".jpg", ".jpeg", ".png")]
-        if not images or not (d / "lesions.png").is_file():
-            continue
-        img = cv2.imread(str(images[0]))
-        skin = cv2.imread(str(d / "lesions.png"), cv2.IMREAD_GRAYSCALE) == 0
-        if (d / "nonskin.png").is_file():
-            skin &= cv2.imread(str(d / "nonskin.png"), cv2.IMREAD_GRAYSCALE) == 0
-        r = band_stats(img, skin)
+    for _, rgb, truth in read_real(folder, "fitz17k"):
+        r = band_stats(rgb, truth == CLASSES.index("skin"))
         if r:
             rows.append(r)
     return rows
@@ -65,11 +60,8 @@ def dataset_rows(folder: Path):
     by_kind = {}
     for js in sorted(folder.rglob("targets/*.json")):
         meta = json.loads(js.read_text())
-        semantic = cv2.imread(str(js.with_name(js.stem + "_semantic.png")), cv2.IMREAD_GRAYSCALE)
-        img = cv2.imread(str(js.parent.parent / "images" / (js.stem + ".png")))
-        if semantic is None or img is None:
-            continue
-        r = band_stats(img, semantic == 1)
+        semantic = read_image(js.with_name(js.stem + "_semantic.png"))
+        r = band_stats(read_rgb(js.parent.parent / "images" / (js.stem + ".png")), semantic == SEMANTIC_SKIN)
         if r:
             by_kind.setdefault(meta["camera"].get("framing", "wild"), []).append(r)
     return by_kind
