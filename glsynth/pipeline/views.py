@@ -136,9 +136,10 @@ def _closeup_camera(lesion_sites, rng, v):
 def _regional_camera(body, lesion_sites, rng, v):
     """A body part filling the frame: its width (its extent across its main axis) over the
     frame width in views.regional_fill, seen along the normal, so that a limb or the
-    trunk runs across the whole frame as in a clinician's photograph of a region. With probability views.regional_lesion (when the body has lesions) the part
-    is the one holding a lesion, centred near the lesion, as a clinician photographs an
-    affected region; otherwise a part drawn by area, centred near its middle."""
+    trunk runs across the whole frame as in a clinician's photograph of a region. With
+    probability views.regional_lesion (when the body has lesions) the part is the one
+    holding a lesion, centred near the lesion, as a clinician photographs an affected
+    region; otherwise a part drawn by area, centred near its middle."""
     mesh, labels = body.mesh, body.mesh.vertex_labels
     if labels is None:
         return None
