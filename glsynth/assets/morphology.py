@@ -665,7 +665,11 @@ def _lupus(b, rng, R):
     rim = w * (1 - centre)
     b.erythema(w * (0.6 + 0.4 * (1 - centre)), rng.uniform(2.0, 3.5), oxygen=rng.uniform(0.55, 0.7))
     b.mix("melanin", rim, rng.uniform(1.5, 2.2))                         # hyperpigmented rim
-    residual = smoothstep(0.4, 1.0, c.noise(R * 0.35, 2))                # pigment left in the scar
+    # pigment left in the scar: islands, never most of it (a plain noise threshold could
+    # cover a small centre whole), so the threshold is the noise's 60th centile there
+    n_res = c.noise(R * 0.35, 2)
+    lo = np.percentile(n_res[centre > 0.5], 60) if (centre > 0.5).any() else 0.4
+    residual = smoothstep(lo, lo + 0.6, n_res)
     b.mix("melanin", centre * (1 - 0.8 * residual), rng.uniform(0.05, 0.3))  # depigmented scar
     vessels = (1 - smoothstep(0.0, 0.06, np.abs(c.noise(max(0.6, R / 12), 2)))) * centre
     b.f["blood_add"] += 0.12 * vessels
