@@ -288,8 +288,9 @@ class ViewsConfig:
                         "wild (the paper's: a surface point or lesion at distance w)",
                         rule=Rule(_framing_weights, f"a mapping of some of {', '.join(FRAMINGS)} "
                                   "to weights >= 0, not all 0"))
-    closeup_fraction: list = key([0.05, 0.7], "close-ups: lesion area / frame area",
-                                 pair=between(1e-4, 1))
+    closeup_fraction: list = key([0.05, 1.5], "close-ups: lesion area / frame area (above 1: a "
+                                 "large lesion or eruption seen in part, running off the frame)",
+                                 pair=between(1e-4, 10))
     closeup_tilt: float = key(25.0, "close-ups: the camera within this angle of the normal (degrees)",
                               within=Interval(0, 90, hi_open=True))
     closeup_w: list = key([0.04, 0.6], "close-ups: camera distance limits (m)",

@@ -320,6 +320,29 @@ def test_closeups_frame_a_lesion_at_the_requested_fraction(renderer, rng, radius
         assert w == v.closeup_w[0] and fov == v.closeup_min_fov_deg and got < 0.5 * frac
 
 
+def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):
+    """closeup_fraction above 1 asks for a frame smaller than the lesion: a large disc
+    seen square-on then runs off every edge of the frame and covers nearly all of it."""
+    from glsynth.pipeline import views as V
+    frac = rng.uniform(1.5, 3.0)
+    v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0").views
+    r = rng.uniform(0.04, 0.08)
+    a, d = rng.uniform(0, 2 * np.pi, 4000), r * np.sqrt(rng.uniform(0, 1, 4000))
+    pts = np.c_[d * np.cos(a), d * np.sin(a), np.zeros_like(a)]
+    site = V.LesionSite(pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)), np.pi * r * r)
+    point, normal, direction, w, _, fov = V._closeup_camera([site], rng, v)
+    cam = gs.Camera.from_surface(point, direction, w, fov_deg=fov, width=renderer.width, height=renderer.height)
+    mesh = plane(rng, size=1.0)
+    out = renderer.render(mesh, cam, passes=("gbuffer",))
+    p = np.einsum("hwk,hwkc->hwc", out["bary"], mesh.vertices[mesh.faces[np.maximum(out["face_id"], 0)]])
+    inside = np.linalg.norm(p, axis=-1) < r
+    side = 2 * w * np.tan(np.radians(fov) / 2)
+    assert abs(np.pi * r * r / side ** 2 - frac) < 1e-6 * frac
+    assert inside.mean() > 0.75
+    for edge in (inside[0], inside[-1], inside[:, 0], inside[:, -1]):
+        assert edge.any()
+
+
 @pytest.mark.slow
 def test_multi_lesion_conditions_give_one_instance_each_with_exact_boxes(tmp_path):
     """Widespread conditions (acne, urticaria): each discrete lesion is its own instance,
