@@ -343,6 +343,17 @@ def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):
         assert edge.any()
 
 
+def test_each_body_gets_its_own_procedural_lesions(tmp_path):
+    """A procedural bank holds per_body lesions for each body and deals them out: no
+    lesion is pasted on two bodies (drawn at random, two bodies shared one in four)."""
+    cfg = small_config("bodies.count=3", "lesions.per_body=2", "lesions.resolution=96",
+                       "lesions.kinds=[nevus, pigmented_patch]")
+    gs.SelectAndPaste(cfg, tmp_path).paste_on_locations()
+    ids = [p["lesion_id"] for b in ("body000", "body001", "body002")
+           for p in json.load(open(tmp_path / "bodies" / b / "placements.json"))]
+    assert len(ids) >= 4 and len(set(ids)) == len(ids), ids
+
+
 @pytest.mark.slow
 def test_multi_lesion_conditions_give_one_instance_each_with_exact_boxes(tmp_path):
     """Widespread conditions (acne, urticaria): each discrete lesion is its own instance,

@@ -94,6 +94,7 @@ class SelectAndPaste(_Stage):
             return
         lesions = self._lesions  # a worker keeps it across bodies
         settings = PasteSettings.from_config(cfg)
+        run_bodies = body_ids(cfg)
         for body_id in tqdm(self.body_ids, desc="paste", unit="body"):
             folder = self.body_dir(body_id)
             if PastedTextures.exists(folder):
@@ -107,8 +108,13 @@ class SelectAndPaste(_Stage):
             self._time("load_body", time.perf_counter() - t0)
             t0 = time.perf_counter()
             rng = rng_for(cfg.seed, "lesion-choice", body_id)
-            picks = rng.choice(len(lesions), cfg.lesions.per_body,
-                               replace=len(lesions) < cfg.lesions.per_body)
+            if cfg.lesions.source == "procedural":
+                # the bank holds per_body lesions for each body: dealt out, none shared
+                first = run_bodies.index(body_id) * cfg.lesions.per_body
+                picks = (first + np.arange(cfg.lesions.per_body)) % len(lesions)
+            else:
+                picks = rng.choice(len(lesions), cfg.lesions.per_body,
+                                   replace=len(lesions) < cfg.lesions.per_body)
             chosen = [lesions[int(i)] for i in picks]
             # the rest of the bank, in a seeded order, for a body that can hold none of these
             taken = set(picks.tolist())
