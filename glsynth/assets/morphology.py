@@ -365,28 +365,54 @@ def _nevus(b, rng, R):
 
 
 def _melanoma(b, rng, R):
+    """Superficial spreading or nodular melanoma: asymmetric, tan to black, variegated at
+    the scale of a millimetre, with a coarse atypical network, dots, a blue-grey veil,
+    erythema and regression; often raised. (The flat, ill-defined lentigo maligna on
+    sun-damaged skin is its own preset.)"""
     c = b.c
-    # a third are lentigo maligna-like: flat, ill-defined, tan to brown, on sun-damaged skin
-    lentigo = rng.random() < 0.35
     sd = c.shape("round", R, aspect=rng.uniform(0.6, 0.95), irregular=rng.uniform(0.15, 0.3), warp=0.15)
-    w = b.weight(sd, R * 0.3, "ill-defined" if lentigo or rng.random() < 0.4 else "sharp")
+    w = b.weight(sd, R * 0.3, "ill-defined" if rng.random() < 0.4 else "sharp")
     d = c.noise(R / 2.5, 3) + 1.2 * (c.x * rng.normal() + c.y * rng.normal()) / R   # asymmetry
     # variegation at the scale of a millimetre, a coarse atypical network and dots
     fine = c.noise(max(0.6, R / 12), 2)
     net = 1 - smoothstep(0.0, 0.35, np.abs(c.noise(max(0.35, R / 25), 1)))
     dots = smoothstep(1.6, 2.3, c.noise(max(0.25, R / 40), 1)) * smoothstep(-0.5, 0.8, d)
-    dark = (0.04, 0.2) if lentigo else (0.08, 0.45)
-    b.f["melanin_add"] += w * (dark[0] + dark[1] * smoothstep(-1.0, 1.5, d + 0.35 * fine)
+    b.f["melanin_add"] += w * (0.08 + 0.45 * smoothstep(-1.0, 1.5, d + 0.35 * fine)
                                + 0.08 * net + 0.3 * dots)                            # tan/brown to black
     b.f["dermal_melanin"] += w * 0.015 * smoothstep(0.6, 1.8, c.noise(R / 3, 2))       # blue-grey veil
     b.erythema(w * smoothstep(0.5, 2.0, c.noise(R / 3, 2)), 1.5)
     regress = w * 0.7 * smoothstep(1.2, 2.4, c.noise(R / 3, 2))                        # regression
     b.mix("melanin_add", regress, 0.0)
     b.mix("melanin", regress, 0.6)
-    if not lentigo:
-        b.f["height"] += rng.uniform(0.0, 0.8) * smoothstep(0, R, sd)
+    b.f["height"] += rng.uniform(0.0, 0.8) * smoothstep(0, R, sd)
     b.outline(w, 0.35)
-    return {"irregularity": "high", "subtype": "lentigo maligna" if lentigo else "superficial/nodular"}
+    return {"irregularity": "high"}
+
+
+def _lentigo_maligna(b, rng, R):
+    """Lentigo maligna (melanoma in situ on chronically sun-damaged skin, and the solar
+    lentigines it is mistaken for): a large flat macule, several centimetres, its outline
+    a ragged coast that fades out in places; mottled in many shades from light tan to
+    dark brown, in blotches of a few millimetres to a centimetre that overlap unevenly,
+    with skip areas of paler skin inside, darker flecks and rings round follicle openings
+    (which stay pale), and grey where pigment has dropped into the dermis. Flat: the
+    skin's markings run through it unchanged."""
+    c = b.c
+    sd = c.shape("round", R, aspect=rng.uniform(0.5, 0.9), irregular=rng.uniform(0.3, 0.45),
+                 warp=rng.uniform(0.2, 0.35))
+    fade = smoothstep(-1.0, 1.0, c.noise(R / 1.5, 2))            # where the border fades out
+    w = b.weight(sd, R * (0.12 + 0.35 * fade), "ill-defined")
+    blotch = smoothstep(-1.5, 2.2, c.noise(R / 3, 2) + 0.5 * c.noise(max(0.8, R / 8), 2))
+    skip = 0.3 + 0.7 * smoothstep(-2.2, -0.6, c.noise(R / 4, 2))   # paler skin left inside
+    base = rng.uniform(0.02, 0.05)
+    dark = rng.uniform(0.08, 0.2)
+    follicle = c.noise(max(0.3, R / 40), 1)                        # rings round follicles
+    flecks = smoothstep(0.4, 1.0, follicle) * (1 - smoothstep(1.3, 1.7, follicle)) * blotch
+    b.f["melanin_add"] += w * skip * (base + dark * blotch + 0.08 * flecks)
+    grey = smoothstep(1.0, 2.0, c.noise(R / 4, 2)) * w
+    b.f["dermal_melanin"] += 0.012 * grey
+    b.outline(w * np.maximum(skip, 0.6), 0.35)
+    return {"border": "ill-defined, fading in places"}
 
 
 def _plaque(b, rng, R, shape, scale_colour, erythema, border="sharp", scale_cov=0.8, flake=1.5):
@@ -888,6 +914,7 @@ def _inflammatory_patch(b, rng, R):
 PRESETS = {
     "nevus": (_nevus, (2.5, 9.0)),
     "melanoma": (_melanoma, (6.0, 35.0)),
+    "lentigo_maligna": (_lentigo_maligna, (15.0, 70.0)),
     "psoriasis": (_psoriasis, (15.0, 120.0)),
     "eczema": (_eczema, (20.0, 120.0)),
     "tinea": (_tinea, (15.0, 80.0)),
