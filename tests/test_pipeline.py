@@ -345,7 +345,8 @@ def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):
 
 def test_each_body_gets_its_own_procedural_lesions(tmp_path):
     """A procedural bank holds per_body lesions for each body and deals them out: no
-    lesion is pasted on two bodies (drawn at random, two bodies shared one in four)."""
+    lesion is pasted on two bodies (drawn at random, a quarter of them repeated another
+    body's)."""
     cfg = small_config("bodies.count=3", "lesions.per_body=2", "lesions.resolution=96",
                        "lesions.kinds=[nevus, pigmented_patch]")
     gs.SelectAndPaste(cfg, tmp_path).paste_on_locations()
