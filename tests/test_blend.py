@@ -224,3 +224,17 @@ def test_blend_error_on_non_finite(scene, monkeypatch):
     blender = DeepBlender(scene.r, scene.body.mesh, scene.pasted, s, None)
     with pytest.raises(BlendError, match="non-finite"):
         blender.blend(scene.placement, rng_for(4, "t"))
+
+
+def test_body_texels_are_kept_for_the_same_body_only(scene, rng):
+    """``of_body`` gives what ``of`` gives, keeps it while the body's geometry is the
+    same (a fresh load of the body included), and works it out anew for another body."""
+    TexelGeometry.forget()
+    a = TexelGeometry.of_body(scene.r, scene.body.mesh)
+    again = scene.body.mesh.copy_with(texture=scene.body.mesh.texture.copy())
+    assert TexelGeometry.of_body(scene.r, again) is a
+    assert np.array_equal(a.points, scene.tx.points) and np.array_equal(a.rows, scene.tx.rows)
+    moved = scene.body.mesh.copy_with(vertices=scene.body.mesh.vertices + rng.normal(0, 1e-3, 3))
+    b = TexelGeometry.of_body(scene.r, moved)
+    assert b is not a and np.allclose(b.points, a.points + (moved.vertices - scene.body.mesh.vertices)[0])
+    TexelGeometry.forget()

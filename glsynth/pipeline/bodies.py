@@ -149,3 +149,25 @@ class TexelGeometry:
         normals = np.einsum("nk,nkj->nj", bary, mesh.vertex_normals[corners])
         normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
         return cls(rows, cols, faces, points, normals, covered)
+
+    @classmethod
+    def of_body(cls, renderer, mesh):
+        """``of(renderer, mesh)`` for all texels, kept for the last body seen (by its
+        geometry, UVs and texture size): a worker pastes a body, then blends it and
+        builds its decals, and each needs the same ~2 s of texel geometry."""
+        h = hashlib.sha1()
+        for a in (mesh.vertices, mesh.faces, mesh.uvs, mesh.face_uvs):
+            h.update(np.ascontiguousarray(a).tobytes())
+        key = (mesh.texture.shape[:2], h.hexdigest())
+        if _LAST_BODY_TEXELS.get("key") != key:
+            _LAST_BODY_TEXELS.clear()      # one body's (~0.2 GB) at a time
+            _LAST_BODY_TEXELS.update(key=key, texels=cls.of(renderer, mesh))
+        return _LAST_BODY_TEXELS["texels"]
+
+    @staticmethod
+    def forget():
+        """Drop the body kept by ``of_body`` (once its blend and decals are done)."""
+        _LAST_BODY_TEXELS.clear()
+
+
+_LAST_BODY_TEXELS = {}

@@ -120,7 +120,7 @@ class SelectAndPaste(_Stage):
             taken = set(picks.tolist())
             spares = (lesions[int(i)] for i in rng.permutation(len(lesions)) if i not in taken)
             renderer = self.renderer
-            texels = TexelGeometry.of(renderer, body.mesh)
+            texels = TexelGeometry.of_body(renderer, body.mesh)
             result = paste_lesions(renderer, body, texels, chosen, settings, (body_id,), cfg.seed,
                                    spares)
             result.save(folder)
@@ -152,8 +152,8 @@ class BlendLesions(_Stage):
                 blended = pasted.pasted
             elif b.method == "poisson":
                 from .poisson import poisson_blend
-                blended = poisson_blend(renderer, body.mesh, pasted, TexelGeometry.of(renderer, body.mesh),
-                                        b.pad)
+                texels = TexelGeometry.of_body(renderer, body.mesh)
+                blended = poisson_blend(renderer, body.mesh, pasted, texels, b.pad)
             else:
                 from .blend import BlendSettings, DeepBlender  # torch: imported only to blend deep
                 settings = BlendSettings.from_config(b)
@@ -177,15 +177,16 @@ class BlendLesions(_Stage):
             # no timings here: every file but manifest.json is the same on every run
             write_text(os.path.join(folder, "blend.json"), json.dumps(record, indent=1, sort_keys=True))
             self._time("blend", time.perf_counter() - t0)
-
+        TexelGeometry.forget()
 
     def _decals(self, body, pasted, blended, folder):
         """Each lesion at its own resolution (pipeline/decals.py), saved with the body."""
         from ..assets.lesions import lesion_from_meta
         from .decals import build_decals
         renderer = self.renderer
-        decals = build_decals(renderer, body.mesh, TexelGeometry.of(renderer, body.mesh), pasted.original,
-                              pasted.pasted, blended, pasted.placements,
+        texels = TexelGeometry.of_body(renderer, body.mesh)
+        decals = build_decals(renderer, body.mesh, texels, pasted.original, pasted.pasted, blended,
+                              pasted.placements,
                               lambda p: lesion_from_meta(p.lesion_meta), self.cfg.lesions.decal_size)
         decals.save(folder)
 
