@@ -322,9 +322,11 @@ def test_closeups_frame_a_lesion_at_the_requested_fraction(renderer, rng, radius
 
 def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):
     """closeup_fraction above 1 asks for a frame smaller than the lesion: a large disc
-    seen square-on then runs off every edge of the frame and covers nearly all of it."""
+    seen square-on then runs off every edge of the frame and covers nearly all of it
+    (asked well above 1.5: up to about 1.5 the fifth of a frame that a close-up's aim
+    may stray can leave one edge clear of a disc)."""
     from glsynth.pipeline import views as V
-    frac = rng.uniform(1.5, 3.0)
+    frac = rng.uniform(2.2, 4.0)
     v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0").views
     r = rng.uniform(0.04, 0.08)
     a, d = rng.uniform(0, 2 * np.pi, 4000), r * np.sqrt(rng.uniform(0, 1, 4000))
@@ -343,16 +345,25 @@ def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):
         assert edge.any()
 
 
-def test_each_body_gets_its_own_procedural_lesions(tmp_path):
+def test_each_body_gets_its_own_procedural_lesions_and_a_shard_the_same(tmp_path):
     """A procedural bank holds per_body lesions for each body and deals them out: no
     lesion is pasted on two bodies (drawn at random, a quarter of them repeated another
-    body's)."""
-    cfg = small_config("bodies.count=3", "lesions.per_body=2", "lesions.resolution=96",
-                       "lesions.kinds=[nevus, pigmented_patch]")
-    gs.SelectAndPaste(cfg, tmp_path).paste_on_locations()
-    ids = [p["lesion_id"] for b in ("body000", "body001", "body002")
-           for p in json.load(open(tmp_path / "bodies" / b / "placements.json"))]
+    body's). A shard of the run (bodies.first) holds the same bodies with the same
+    lesions, and backgrounds of its own."""
+    from glsynth.pipeline.inputs import background_source
+    opts = ("lesions.per_body=2", "lesions.resolution=96", "lesions.kinds=[nevus, pigmented_patch]")
+    whole = small_config("bodies.count=3", *opts)
+    gs.SelectAndPaste(whole, tmp_path / "whole").paste_on_locations()
+    placed = {b: [p["lesion_id"] for p in json.load(open(tmp_path / "whole" / "bodies" / b / "placements.json"))]
+              for b in ("body000", "body001", "body002")}
+    ids = sum(placed.values(), [])
     assert len(ids) >= 4 and len(set(ids)) == len(ids), ids
+    shard = small_config("bodies.count=1", "bodies.first=2", *opts)
+    assert gs.pipeline.bodies.body_ids(shard) == ["body002"]
+    gs.SelectAndPaste(shard, tmp_path / "shard").paste_on_locations()
+    mine = json.load(open(tmp_path / "shard" / "bodies" / "body002" / "placements.json"))
+    assert [p["lesion_id"] for p in mine] == placed["body002"]
+    assert not set(background_source(shard).ids) & set(background_source(whole).ids)
 
 
 @pytest.mark.slow
