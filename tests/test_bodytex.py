@@ -322,6 +322,13 @@ def test_scans_are_chosen_to_span_skin_tone(tmp_path, rng, monkeypatch):
     assert pb.body_ids(cfg) == ids
     cfg_all = load_config(None, [f"bodies.source={root}", "bodies.count=50"])
     assert pb.body_ids(cfg_all) == sorted(os.listdir(root))
+    # two shards of 2 hold the scans of a run of 4, and every prefix spans the range
+    shards = [pb.body_ids(load_config(None, [f"bodies.source={root}", "bodies.count=2", f"bodies.first={f}"]))
+              for f in (0, 2)]
+    four = pb.body_ids(load_config(None, [f"bodies.source={root}", "bodies.count=4"]))
+    assert shards[0] == ["084-scan", "090-scan"] and sorted(shards[0] + shards[1]) == four
+    with pytest.raises(FileNotFoundError, match="bodies.first"):
+        pb.body_ids(load_config(None, [f"bodies.source={root}", "bodies.first=7"]))
 
 
 @pytest.mark.parametrize("axis,sign", [(2, 1), (2, -1), (0, 1), (1, -1)])

@@ -154,19 +154,20 @@ BACKDROPS = {
 
 class ProceduralBackgrounds(_Backgrounds):
     """`n` seeded backgrounds, size x size, rendered on access (image i depends only on
-    (seed, i)): indoor rooms and, with probability ``clinical``, the backdrops of clinical
-    photographs (surgical drapes, sheets, couch paper, plain walls, clothing fabric)."""
+    (seed, first + i)): indoor rooms and, with probability ``clinical``, the backdrops of
+    clinical photographs (surgical drapes, sheets, couch paper, plain walls, clothing
+    fabric)."""
 
-    def __init__(self, n: int, seed: int = 0, size: int = 512, clinical: float = 0.0):
+    def __init__(self, n: int, seed: int = 0, size: int = 512, clinical: float = 0.0, first: int = 0):
         if int(size) < 64:
             raise BackgroundError(f"procedural background size must be >= 64 px, got {size}")
         self.seed, self.size, self.clinical = int(seed), int(size), float(clinical)
         self.ids, self.meta = [], []
-        for i in range(int(n)):
-            backdrop = self._backdrop(i)
-            self.ids.append(f"{'room' if backdrop is None else backdrop['kind']}-{self.seed}-{i}")
-            self.meta.append(dict(self._layout(i) if backdrop is None else backdrop,
-                                  source="procedural", seed=self.seed, index=i))
+        for k in range(int(first), int(first) + int(n)):
+            backdrop = self._backdrop(k)
+            self.ids.append(f"{'room' if backdrop is None else backdrop['kind']}-{self.seed}-{k}")
+            self.meta.append(dict(self._layout(k) if backdrop is None else backdrop,
+                                  source="procedural", seed=self.seed, index=k))
 
     def _backdrop(self, i):
         """A clinical backdrop's layout, or None for a room (drawn from a stream of its
@@ -197,7 +198,7 @@ class ProceduralBackgrounds(_Backgrounds):
 
     def _image(self, i):
         m, n = self.meta[i], self.size
-        rng = np.random.default_rng([self.seed, i, 1])
+        rng = np.random.default_rng([self.seed, m["index"], 1])
         if "kind" in m:
             return self._backdrop_image(m, rng)
         img = np.empty((n, n, 3), np.float32)
@@ -353,7 +354,7 @@ class ProceduralBackgrounds(_Backgrounds):
                 cv2.line(img, (x, y0 + 3), (x, y1 - 3), tuple(float(c) for c in col * 0.6), 1, cv2.LINE_AA)
 
 
-def procedural_backgrounds(n: int, seed: int = 0, size: int = 512, clinical: float = 0.0
-                           ) -> ProceduralBackgrounds:
+def procedural_backgrounds(n: int, seed: int = 0, size: int = 512, clinical: float = 0.0,
+                           first: int = 0) -> ProceduralBackgrounds:
     """`n` seeded procedural backgrounds (size x size); see ProceduralBackgrounds."""
-    return ProceduralBackgrounds(n, seed, size, clinical)
+    return ProceduralBackgrounds(n, seed, size, clinical, first)

@@ -18,29 +18,40 @@ log = logging.getLogger(__name__)
 
 
 def body_ids(cfg: Config) -> list[str]:
-    """Built-in body names, or the scan folders to use: all of them, or when there are
-    more than ``bodies.count``, that many spread evenly over skin tone."""
+    """The run's bodies, from the ``bodies.first``-th on: built-in body names, or scan
+    folders in an order that spreads over skin tone (:func:`skin_tone_order`), so that
+    any run or shard of ``bodies.count`` scans spans the range; a shard's scans are
+    those of the whole run. Scan ids come sorted by name."""
+    first, count = cfg.bodies.first, cfg.bodies.count
     if cfg.bodies.source == "builtin":
-        return [f"body{i:03d}" for i in range(cfg.bodies.count)]
+        return [f"body{i:03d}" for i in range(first, first + count)]
     folders = scan_folders(cfg.bodies.source)
-    if cfg.bodies.count >= len(folders):
-        return [os.path.basename(f) for f in folders]
-    return spread_over_skin_tone(folders, cfg.bodies.count)
+    if first >= len(folders):
+        raise FileNotFoundError(f"bodies.source {cfg.bodies.source!r}: bodies.first is {first}, "
+                                f"but it holds {len(folders)} scan folders")
+    if first + count >= len(folders) and first == 0:
+        return [os.path.basename(f) for f in folders]   # all: no skin tones to measure
+    return sorted(skin_tone_order(folders)[first:first + count])
 
 
-def spread_over_skin_tone(folders, count: int) -> list[str]:
-    """``count`` scan ids (sorted) at evenly spaced ranks of skin tone, lightest and
-    darkest included: the paper chose its 50 of 3DBodyTex's scans "to cover a wider
-    range of skin tones", measured as ITA over the skin (``scan_ita``). Scans without
-    skin texels rank after the others."""
-    itas = [scan_ita(f) for f in folders]
-    ranked = sorted(zip((math.inf if v is None else v for v in itas), map(os.path.basename, folders)))
+def skin_tone_order(folders) -> list[str]:
+    """Scan ids ordered so that every prefix spreads over skin tone: the lightest, the
+    darkest, then each time the scan whose skin tone rank lies farthest from those
+    taken (the paper chose its 50 of 3DBodyTex's scans "to cover a wider range of skin
+    tones", measured as ITA over the skin, ``scan_ita``). Scans without skin texels rank
+    after the others."""
+    tone = {os.path.basename(f): scan_ita(f) for f in folders}
+    ranked = sorted(tone, key=lambda name: (math.inf if tone[name] is None else tone[name], name))
     n = len(ranked)
-    ranks = np.rint(np.linspace(0, n - 1, count) if count > 1 else [(n - 1) / 2]).astype(int)
-    chosen = sorted(ranked[i][1] for i in ranks)
-    log.info("bodies: %d of %d scans, spread over ITA %s", count, n,
-             ", ".join(f"{name} {v:.0f}" for v, name in sorted(ranked[i] for i in ranks)))
-    return chosen
+    taken = [0] + ([n - 1] if n > 1 else [])
+    gap = np.abs(np.arange(n)[:, None] - np.array(taken)[None]).min(1)
+    while len(taken) < n:
+        k = int(np.argmax(gap))                            # ties: the lighter
+        taken.append(k)
+        gap = np.minimum(gap, np.abs(np.arange(n) - k))
+    log.info("bodies: scans in skin tone order (ITA): %s",
+             ", ".join(f"{ranked[k]} {tone[ranked[k]]}" for k in taken[:8]))
+    return [ranked[k] for k in taken]
 
 
 def scan_ita(folder) -> float | None:

@@ -20,7 +20,7 @@ def lesion_source(cfg: Config):
     le = cfg.lesions
     if le.source == "procedural":
         from ..assets.lesions import ProceduralLesions
-        n = max(le.per_body * cfg.bodies.count, 1)
+        n = max(le.per_body * (cfg.bodies.first + cfg.bodies.count), 1)  # dealt by body index
         return ProceduralLesions(n, seed=cfg.seed, size=le.resolution, kinds=le.kinds)
     return assets.load_lesions(le.source, layout=le.layout, colour_constancy=le.colour_constancy,
                                min_size=le.min_size, max_mask_fraction=le.max_mask_fraction)
@@ -30,7 +30,9 @@ def background_source(cfg: Config):
     from .. import assets
     b = cfg.backgrounds
     if b.source == "procedural":
+        # a shard's own: indices from bodies.first x count, so shards do not share them
         return assets.procedural_backgrounds(b.count, seed=cfg.seed, size=cfg.views.size,
+                                             first=cfg.bodies.first * b.count,
                                              clinical=b.clinical)
     return assets.load_backgrounds(b.source)
 

@@ -109,8 +109,9 @@ class SelectAndPaste(_Stage):
             t0 = time.perf_counter()
             rng = rng_for(cfg.seed, "lesion-choice", body_id)
             if cfg.lesions.source == "procedural":
-                # the bank holds per_body lesions for each body: dealt out, none shared
-                first = run_bodies.index(body_id) * cfg.lesions.per_body
+                # the bank holds per_body lesions for each body of the whole run (shards
+                # included): dealt out by the body's index, none shared
+                first = (cfg.bodies.first + run_bodies.index(body_id)) * cfg.lesions.per_body
                 picks = (first + np.arange(cfg.lesions.per_body)) % len(lesions)
             else:
                 picks = rng.choice(len(lesions), cfg.lesions.per_body,
