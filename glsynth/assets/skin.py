@@ -22,7 +22,6 @@ exist; the rest is geometric (joint positions, part scores from skinning weights
 from __future__ import annotations
 
 import logging
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -177,15 +176,6 @@ class Noise3D:
 
     def __call__(self, p, freq: float) -> np.ndarray:
         q = np.asarray(p, np.float64) * freq + self.off
-        # a texture's millions of texels in chunks on this process's share of the cores
-        # (OpenCV's thread count; numpy's gathers release the GIL): a body builds faster
-        threads = min(max(cv2.getNumThreads(), 1), len(q) // 500_000)
-        if threads > 1:
-            with ThreadPoolExecutor(threads) as pool:
-                return np.concatenate(list(pool.map(self._lattice, np.array_split(q, threads))))
-        return self._lattice(q)
-
-    def _lattice(self, q):
         i = np.floor(q)
         f = (q - i).astype(np.float32)
         i = i.astype(np.int32) & 255
