@@ -145,8 +145,9 @@ class BodiesConfig:
     count: int = key(2, "bodies in the run (from a folder: that many, spread over skin tone)",
                      within=at_least(1))
     first: int = key(0, "index of the run's first body: a shard of a larger run holds bodies "
-                     "first..first+count-1 of it, with the procedural lesions dealt to them there "
-                     "and backgrounds of its own (sim2real's parts are shards)", within=at_least(0))
+                     "first..first+count-1 of it (built-in ones with the procedural lesions dealt "
+                     "to them there; scans in an order spread over skin tone) and backgrounds of "
+                     "its own (sim2real's parts are shards)", within=at_least(0))
     texture_size: int = key(2048, "texels per side of a built-in body's texture",
                             within=between(64, 8192))
     fitzpatrick: list = key([1, 6], "Fitzpatrick skin types of built-in bodies (drawn per body)",
