@@ -937,22 +937,31 @@ PRESETS = {
 }
 
 
+# grid side / condition extent, tried in turn until the outline stays off the grid's edge
+GRID_MARGINS = (1.4, 1.9, 2.6, 3.6)
+
+
 def make_condition(preset: str, seed, size=512, extent_mm=None) -> LesionFields:
     """One seeded condition of ``preset`` on a size x size grid; its extent is drawn from
     the preset's range unless given (mm; the grid has a margin around it)."""
     if preset not in PRESETS:
         raise ValueError(f"unknown lesion preset {preset!r}; choose from {sorted(PRESETS)}")
-    rng = np.random.default_rng(np.atleast_1d(seed).tolist() + [17])
     build, (lo, hi) = PRESETS[preset]
-    extent = float(extent_mm) if extent_mm is not None else _size(rng, lo, hi)
-    canvas = Canvas(rng, int(size), extent * 1.4)                       # margin for borders
-    b = Builder(canvas)
-    extra = build(b, rng, extent / 2) or {}
-    b.f["height"] = cv2.GaussianBlur(b.f["height"], (0, 0), max(0.6, 0.05 / canvas.px))
-    # the condition fades out before the grid's edge, so that nothing is cut off there
+    # the condition fades out before the grid's edge; an outline that reaches that band
+    # would be cut along a straight line there, so the same draw is made again on a grid
+    # with a wider margin (coarser cells) until its outline stays inside
     edge = np.minimum.reduce([np.arange(size), np.arange(size)[::-1]]).astype(np.float32)
     taper = smoothstep(0.0, 0.06 * size, edge)
     taper = np.minimum.outer(taper, taper)
+    for margin in GRID_MARGINS:
+        rng = np.random.default_rng(np.atleast_1d(seed).tolist() + [17])
+        extent = float(extent_mm) if extent_mm is not None else _size(rng, lo, hi)
+        canvas = Canvas(rng, int(size), extent * margin)
+        b = Builder(canvas)
+        extra = build(b, rng, extent / 2) or {}
+        if not (b.mask & (taper < 1)).any():
+            break
+    b.f["height"] = cv2.GaussianBlur(b.f["height"], (0, 0), max(0.6, 0.05 / canvas.px))
     for k in FIELDS:
         b.f[k] = (NEUTRAL[k] + (b.f[k] - NEUTRAL[k]) * taper).astype(np.float32)
     b.mask &= taper > 0.5
