@@ -12,13 +12,12 @@ eruption photographed in part).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
+from dataset_views import views_by_framing
 from glsynth.dataformat import SEMANTIC_LESION
-from glsynth.io.images import read_image
 from glsynth.train.evaluate import CLASSES, read_real
 
 QUANTILES = (0.1, 0.25, 0.5, 0.75, 0.9)
@@ -36,10 +35,8 @@ def real_rows(folder: Path):
 
 def dataset_rows(folder: Path):
     by_kind = {}
-    for js in sorted(folder.rglob("targets/*.json")):
-        kind = json.loads(js.read_text())["camera"].get("framing", "wild")
-        semantic = read_image(js.with_name(js.stem + "_semantic.png"))
-        row = _row(semantic == SEMANTIC_LESION)
+    for kind, run, sid in views_by_framing(folder):
+        row = _row(run.layer(sid, "semantic") == SEMANTIC_LESION)
         by_kind.setdefault(kind, []).append(row)
         by_kind.setdefault("all", []).append(row)
     return by_kind

@@ -13,14 +13,13 @@ framing (``camera.framing`` in the per-view JSON).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from dataset_views import views_by_framing
 from glsynth.dataformat import SEMANTIC_SKIN
-from glsynth.io.images import read_image, read_rgb
 from glsynth.train.evaluate import CLASSES, read_real
 
 
@@ -58,12 +57,10 @@ def real_rows(folder: Path):
 
 def dataset_rows(folder: Path):
     by_kind = {}
-    for js in sorted(folder.rglob("targets/*.json")):
-        meta = json.loads(js.read_text())
-        semantic = read_image(js.with_name(js.stem + "_semantic.png"))
-        r = band_stats(read_rgb(js.parent.parent / "images" / (js.stem + ".png")), semantic == SEMANTIC_SKIN)
+    for kind, run, sid in views_by_framing(folder):
+        r = band_stats(run.image(sid), run.layer(sid, "semantic") == SEMANTIC_SKIN)
         if r:
-            by_kind.setdefault(meta["camera"].get("framing", "wild"), []).append(r)
+            by_kind.setdefault(kind, []).append(r)
     return by_kind
 
 
