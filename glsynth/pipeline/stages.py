@@ -94,7 +94,9 @@ class SelectAndPaste(_Stage):
             return
         lesions = self._lesions  # a worker keeps it across bodies
         settings = PasteSettings.from_config(cfg)
-        run_bodies = body_ids(cfg)
+        # a procedural bank is dealt out by each body's place in the whole run
+        procedural = cfg.lesions.source == "procedural"
+        run_bodies = body_ids(cfg) if procedural else None
         for body_id in tqdm(self.body_ids, desc="paste", unit="body"):
             folder = self.body_dir(body_id)
             if PastedTextures.exists(folder):
@@ -108,7 +110,7 @@ class SelectAndPaste(_Stage):
             self._time("load_body", time.perf_counter() - t0)
             t0 = time.perf_counter()
             rng = rng_for(cfg.seed, "lesion-choice", body_id)
-            if cfg.lesions.source == "procedural":
+            if procedural:
                 # the bank holds per_body lesions for each body of the whole run (shards
                 # included): dealt out by the body's index, none shared
                 first = (cfg.bodies.first + run_bodies.index(body_id)) * cfg.lesions.per_body

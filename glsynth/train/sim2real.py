@@ -92,9 +92,7 @@ def generate_parts(cfg, out, seconds, views_per_body=80, bodies_per_part=2, stat
             last = parts[-1]["seconds"] if parts else 0.0
             if seconds <= 0 or spent + last > seconds:
                 break
-            parts.append({"folder": os.path.join("data", f"part{len(parts):03d}"),
-                          "first_body": int(cfg.bodies.first) + len(parts) * int(bodies_per_part),
-                          "seconds": 0.0})
+            parts.append({"folder": os.path.join("data", f"part{len(parts):03d}"), "seconds": 0.0})
             _save_state(out, state)
         k, entry = len(parts) - 1, parts[-1]
         folder = os.path.join(out, entry["folder"])
