@@ -777,6 +777,9 @@ def _purpura(b, rng, R):
     n = int(np.clip(fill * (R / (0.5 * (r_lo + r_hi))) ** 2, 4, 200))
     centres = arrange(c, "grouped", n, R * 1.1, r_lo * 1.5)
     radii = rng.uniform(r_lo, r_hi, len(centres))
+    if kind == "petechiae" and len(centres) > 1:                        # pinpoints stay apart
+        gap = np.hypot(*(np.array(centres)[:, None] - np.array(centres)[None]).transpose(2, 0, 1))
+        radii = np.minimum(radii, 0.4 * (gap + np.diag(np.full(len(centres), np.inf))).min(1))
     sd, index = spots(c, centres, radii)
     r = radii[index].astype(np.float32)            # each cell's own spot (index -1 is harmless:
     w = b.weight(sd, r * 0.4, "ill-defined")       # sd there is far below the fade)
