@@ -792,3 +792,22 @@ def test_no_condition_is_cut_off_at_its_grid_edge(rng):
         for seed in rng.integers(2 ** 31, size=3):
             f = make_condition(preset, [int(seed)], size=size)
             assert f.mask.any() and not (f.mask & band).any(), (preset, int(seed))
+
+
+def test_pityriasis_rosea_has_a_central_herald_patch_with_a_red_edge_and_paler_centre(rng):
+    """The herald patch sits at the centre, is the largest oval, and (like its daughters)
+    is salmon at its edge and paler inside; the daughters stay clear of it."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    for seed in rng.integers(2 ** 31, size=4):
+        f = make_condition("pityriasis_rosea", [int(seed)], size=256)
+        n = int(f.instances.max())
+        assert n == f.params["daughters"] + 1
+        areas = ndimage.sum(f.mask, f.instances, range(1, n + 1))
+        herald = f.instances == 1 + int(np.argmax(areas))
+        assert herald[128, 128] and areas.max() > 2 * np.delete(areas, np.argmax(areas)).max(initial=0)
+        lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 256, np.random.default_rng(int(seed)))))
+        d = ndimage.distance_transform_edt(herald)
+        edge, centre = herald & (d > 0.1 * d.max()) & (d < 0.35 * d.max()), d > 0.7 * d.max()
+        assert np.median(lab[edge, 1]) > np.median(lab[centre, 1]) + 3, seed
+        assert np.median(lab[centre, 1]) > np.median(lab[~ndimage.binary_dilation(f.mask, iterations=5), 1])

@@ -631,25 +631,38 @@ def _vitiligo(b, rng, R):
 
 
 def _pityriasis_rosea(b, rng, R):
+    """A herald patch (an oval 2-10 cm, at the centre) and, days later, smaller daughter
+    ovals along the skin's tension lines. Each is salmon at its edge, its centre paler
+    and finely wrinkled, a thin collarette of scale just inside the edge facing inwards;
+    on pigmented skin they read grey-brown (a little more melanin)."""
     c = b.c
-    herald = c.shape("oval", R * 0.35, aspect=0.6, irregular=0.05, warp=0.03)
-    pts = arrange(c, "widespread", int(rng.integers(5, 14)), R, R * 0.18)
-    axis = rng.uniform(0, np.pi)                                        # along skin tension lines
-    for i, p in enumerate(pts):
-        r = R * (0.3 if i == 0 else rng.uniform(0.08, 0.16))
-        sd = herald if i == 0 else c.shape("oval", r, centre=p, aspect=0.55, angle=axis, irregular=0.05, warp=0.03)
-        # smooth ovals whose salmon edge fades into the skin; the centre a little paler
-        w = b.weight(sd, r * 0.25, "ill-defined")
-        edge = 1 - 0.35 * smoothstep(r * 0.2, r * 0.7, sd)
-        b.erythema(w * edge, rng.uniform(1.2, 2.2), 0.7)
-        b.f["melanin"] *= 1 + 0.4 * w
-        # a fine collarette of scale just inside the edge, free towards the centre: a thin
+    axis = rng.uniform(0, np.pi)
+    r_herald = R * rng.uniform(0.25, 0.4)
+    herald = (np.zeros(2), r_herald, c.shape("oval", r_herald, aspect=rng.uniform(0.55, 0.8),
+                                             irregular=0.05, warp=0.03))
+    # daughters spread over the region, clear of the herald
+    pts = [p for p in arrange(c, "widespread", int(rng.integers(6, 16)), R, R * 0.18)
+           if np.hypot(*p) > 1.6 * r_herald]
+    daughters = []
+    for p in pts:
+        r = R * rng.uniform(0.06, 0.14)
+        daughters.append((p, r, c.shape("oval", r, centre=p, aspect=0.55, angle=axis,
+                                        irregular=0.05, warp=0.03)))
+    salmon = rng.uniform(2.0, 3.2)
+    for _, r, sd in [herald] + daughters:
+        w = b.weight(sd, r * 0.2, "ill-defined")
+        # the edge is the reddest; the centre clears towards the skin's own colour
+        ring = 1 - 0.75 * smoothstep(r * 0.1, r * 0.55, sd)
+        b.erythema(w * ring, salmon, 0.75)
+        b.f["melanin"] *= 1 + 0.2 * w
+        # a fine collarette just inside the edge, free towards the centre: a thin
         # translucent rim, not flakes (at this size they were a speckle of dots)
-        collar = smoothstep(r * 0.15, 0.0, np.abs(sd - r * 0.12)) * w
+        collar = smoothstep(r * 0.12, 0.0, np.abs(sd - r * 0.12)) * w
         b.f["scale"] = np.maximum(b.f["scale"], 0.3 * collar * (0.7 + 0.3 * c.noise(r / 3, 1)))
         b.f["detail"] *= 1 - 0.3 * collar
         b.outline(w, 0.4)
-    return {"arrangement": "widespread"}
+    return {"arrangement": "widespread", "herald_mm": round(float(2 * r_herald), 1),
+            "daughters": len(daughters)}
 
 
 def _ulcer(b, rng, R):
