@@ -398,14 +398,14 @@ def _lentigo_maligna(b, rng, R):
     (which stay pale), and grey where pigment has dropped into the dermis. Flat: the
     skin's markings run through it unchanged."""
     c = b.c
-    sd = c.shape("round", R, aspect=rng.uniform(0.5, 0.9), irregular=rng.uniform(0.3, 0.45),
-                 warp=rng.uniform(0.2, 0.35))
+    sd = c.shape("round", R, aspect=rng.uniform(0.5, 0.9), irregular=rng.uniform(0.1, 0.25),
+                 warp=rng.uniform(0.08, 0.2))
     fade = smoothstep(-1.0, 1.0, c.noise(R / 1.5, 2))            # where the border fades out
     w = b.weight(sd, R * (0.12 + 0.35 * fade), "ill-defined")
     blotch = smoothstep(-1.5, 2.2, c.noise(R / 3, 2) + 0.5 * c.noise(max(0.8, R / 8), 2))
     skip = 0.3 + 0.7 * smoothstep(-2.2, -0.6, c.noise(R / 4, 2))   # paler skin left inside
-    base = rng.uniform(0.02, 0.05)
-    dark = rng.uniform(0.08, 0.2)
+    base = rng.uniform(0.03, 0.06)
+    dark = rng.uniform(0.07, 0.18)
     follicle = c.noise(max(0.3, R / 40), 1)                        # rings round follicles
     flecks = smoothstep(0.4, 1.0, follicle) * (1 - smoothstep(1.3, 1.7, follicle)) * blotch
     b.f["melanin_add"] += w * skip * (base + dark * blotch + 0.08 * flecks)
