@@ -315,15 +315,25 @@ def test_lentigo_maligna_is_a_large_flat_mottled_brown_macule(rng):
         assert np.mean(lm.f["melanin_add"][ring] > 0.1 * np.median(added)) > 0.3
 
 
-def test_morphea_is_a_blanched_smooth_plaque(rng):
-    """Morphea's core has lost blood and skin markings (ivory, bound-down skin)."""
+def test_morphea_is_a_blanched_smooth_plaque_or_a_depressed_brown_patch(rng):
+    """Active morphea's core has lost blood and skin markings (ivory, bound-down skin);
+    burnt-out morphea is a brown patch, sunk a little, its skin markings kept."""
     from glsynth.assets.morphology import make_condition
-    for seed in rng.integers(2 ** 31, size=4):
+    seen = set()
+    for seed in rng.integers(2 ** 31, size=30):
         f = make_condition("morphea", [int(seed)], size=128)
-        core = ndimage.binary_erosion(f.mask, iterations=12)
+        stage = f.params["stage"]
+        seen.add(stage)
+        d = ndimage.distance_transform_edt(f.mask)
+        core = d > 0.5 * d.max()
         assert core.sum() > 50
-        assert np.median(f.f["blood"][core]) < 0.6 and np.median(f.f["detail"][core]) < 0.5
         assert np.median(f.f["blood"][~f.mask]) > 0.95
+        if stage == "active":
+            assert np.median(f.f["blood"][core]) < 0.6 and np.median(f.f["detail"][core]) < 0.5
+        else:
+            assert np.median(f.f["melanin_add"][core]) > 0.02 and np.median(f.f["height"][core]) < -0.03
+            assert np.median(f.f["detail"][core]) > 0.9
+    assert seen == {"active", "burnt-out"}
 
 
 def test_porokeratosis_rings_have_a_darker_keratotic_rim(rng):

@@ -810,11 +810,21 @@ def _purpura(b, rng, R):
 
 
 def _morphea(b, rng, R):
-    """Localized scleroderma: an oval indurated plaque, ivory and shiny where collagen
-    has replaced the dermis (little blood, skin markings lost), pale or darker on
-    pigmented skin, often inside a lilac (poorly oxygenated) inflammatory ring."""
+    """Localized scleroderma. Active: an oval indurated plaque, ivory and shiny where
+    collagen has replaced the dermis (little blood, skin markings lost), pale or darker on
+    pigmented skin, often inside a lilac (poorly oxygenated) inflammatory ring. Burnt out
+    (atrophoderma): a brown patch, a little depressed, its edge dropping like a cliff,
+    the skin's markings kept: the pigment the inflammation left behind."""
     c = b.c
     sd = c.shape("round", R, aspect=rng.uniform(0.45, 0.9), irregular=0.2, warp=0.15)
+    if rng.random() < 0.35:
+        w = b.weight(sd, R * 0.15, "ill-defined")
+        b.f["melanin_add"] += w * rng.uniform(0.05, 0.12) * (0.85 + 0.15 * c.noise(R / 3, 2))
+        b.f["dermal_melanin"] += w * rng.uniform(0.0, 0.006)                # grey-brown
+        b.f["height"] -= rng.uniform(0.05, 0.15) * smoothstep(0.0, R * 0.1, sd)
+        b.f["gloss"] = np.maximum(b.f["gloss"], 0.1 * w)
+        b.outline(w, 0.4)
+        return {"stage": "burnt-out"}
     w = b.weight(sd, R * 0.12, "ill-defined")
     core = smoothstep(0.0, R * 0.35, sd)
     b.erythema(core, -rng.uniform(0.5, 0.75))                            # blanched
@@ -827,7 +837,7 @@ def _morphea(b, rng, R):
         ring = smoothstep(R * 0.45, 0.0, np.abs(sd - R * 0.05)) ** 2 * w
         b.erythema(ring, rng.uniform(0.8, 1.8), oxygen=0.5)
     b.outline(w, 0.4)
-    return {}
+    return {"stage": "active"}
 
 
 def _porokeratosis(b, rng, R):
