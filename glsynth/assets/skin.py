@@ -467,6 +467,18 @@ class _Painter:
         return Paint(texture, nonskin_img, boxes, feat_img, params_img, weight_img)
 
     # ---- micro-detail parameters --------------------------------------------------------
+    def _exposed(self):
+        """Per texel 0..1: how much of the day the skin is out in the sun (face, neck,
+        hands, forearms)."""
+        ch = self.tx.ch
+        return np.clip(ch["head"] + ch["hands"] + 0.6 * ch["arms"], 0, 1)
+
+    def _photoageing(self):
+        """Per texel 0..1: sun damage, from age (it starts earlier than the other signs of
+        age) and exposure (the exposed parts, shoulders and the upper chest and back)."""
+        up = self.tx.ch["torso"] * _smoothstep(0.2, 0.8, self.tx.nrm[:, 1])
+        return _ageing(self.look.age, start=0.6) * np.clip(self._exposed() + 0.5 * up, 0, 1)
+
     def detail_params(self, nevi_mask):
         """Per texel: the skin shading's relief, pore, hair-density and oiliness levels
         (uint8 RGBA, see glsynth.mesh.SkinSurface) and the detail weight (uint8: 255 on
@@ -486,8 +498,10 @@ class _Painter:
             for name, r in (("lowerarm01", 0.04), ("lowerleg01", 0.05)):
                 joints += _gauss(p, j[f"{name}.{side}"], r * s)
         dorsal_hand = ch["hands"] * (1 - palms)
+        # sun-damaged skin is thin and crepey: its fine wrinkles criss-cross (the shader's
+        # crease tile shows from relief level 0.53 up, its deep creases from 0.65)
         relief = (0.5 + 0.35 * dorsal_hand + 0.35 * np.clip(joints, 0, 1) + 0.25 * palms
-                  - 0.2 * face + 0.3 * old + 0.15 * ch["feet"])
+                  - 0.2 * face + 0.3 * old + 0.15 * ch["feet"] + 0.35 * self._photoageing())
         pores = 0.22 + 0.5 * face + 0.5 * tzone + 0.25 * ch["torso"] * (1 - ch["head"]) - 0.2 * palms
         # hair: 0.25 is vellus alone; terminal hair above it, by region and sex
         h = look.hirsute
@@ -565,7 +579,7 @@ class _Painter:
         b[limbs] -= 3.0 * (1 - dark) * veins
         L[limbs] -= 1.0 * (1 - dark) * veins
         # sun-exposed areas slightly darker, covered areas slightly lighter
-        exposed = np.clip(tx.ch["head"] + tx.ch["hands"] + 0.6 * tx.ch["arms"], 0, 1)
+        exposed = self._exposed()
         L -= 1.2 * exposed
         b += 0.6 * exposed
         # photo-ageing on exposed skin of older bodies: solar lentigines (flat brown
@@ -573,7 +587,7 @@ class _Painter:
         # facial telangiectasia; it starts earlier than the other signs of age
         old = _ageing(self.look.age, start=0.6)
         if old > 0:
-            sun = old * np.clip(exposed + 0.5 * tx.ch["torso"] * _smoothstep(0.2, 0.8, n[:, 1]), 0, 1)
+            sun = self._photoageing()
             spots = _smoothstep(0.42, 0.6, nz.fbm(p + 23.0, 90.0, 2)) * sun
             L -= (6.0 - 3.0 * dark) * spots + 2.5 * sun * np.abs(melanin)
             b += 4.0 * spots
