@@ -330,6 +330,13 @@ class PhotoConfig:
     white_balance: list = key([-0.15, 0.15], "log2(R gain / B gain) shift (+ warm): about +-600 K "
                               "around 5500 K", pair=between(-2, 2))
     tint: list = key([-0.03, 0.03], "log2 G gain shift", pair=between(-2, 2))
+    cast_share: float = key(0.25, "share of images with a strong colour cast (slides and prints "
+                            "scanned into clinical collections, tungsten or fluorescent light "
+                            "the camera did not correct): their white balance and tint come "
+                            "from cast_white_balance and cast_tint", within=between(0, 1))
+    cast_white_balance: list = key([-0.6, 0.6], "a cast's log2(R gain / B gain): about +-2,000 K",
+                                   pair=between(-2, 2))
+    cast_tint: list = key([-0.4, 0.4], "a cast's log2 G gain (green / magenta)", pair=between(-2, 2))
     exposure: list = key([-0.3, 0.3], "exposure error (EV, stops)", pair=between(-4, 4))
     vignetting: list = key([0.0, 0.25], "relative light fall-off at the corners", pair=between(0, 1))
     chromatic_aberration: list = key([0.0, 0.6], "R/B shift at the corners (px)", pair=between(0, 16))

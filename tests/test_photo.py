@@ -327,3 +327,22 @@ def test_photo_changes_only_the_image(tmp_path):
         u, v, _ = k @ (x[:3] / x[2])
         assert abs(u - meta["width"] / 2) < 1e-6 and abs(v - meta["height"] / 2) < 1e-6
         assert np.array(cam["world_to_camera"]).shape == (4, 4)
+
+
+def test_a_share_of_images_carries_a_strong_colour_cast():
+    """cast_share of the images draw white balance and tint from the cast ranges (and say
+    so), the rest from the phone's; a strong green tint takes light skin's a* near grey."""
+    pc = _cfg(white_balance=[-0.1, 0.1], tint=[-0.02, 0.02], cast_white_balance=[-0.6, 0.6],
+              cast_tint=[-0.4, 0.4], cast_share=0.25)
+    draws = [photo.sample_params(pc, rng_for(3, "photo", 0, j), 0.5)["effects"]["white_balance"]
+             for j in range(800)]
+    cast = np.array([d["cast"] for d in draws])
+    assert 0.2 < cast.mean() < 0.3
+    tint = np.abs([d["tint"] for d in draws])
+    assert tint[~cast].max() <= 0.02 and np.percentile(tint[cast], 50) > 0.1
+    skin = np.full((8, 8, 3), (204, 153, 128), np.uint8)
+    green = {"enabled": True, "effects": {"white_balance": {"temperature": 0.0, "tint": 0.4, "cast": True,
+                                                            "gains": [1.0, 2 ** 0.4, 1.0]}}}
+    a = [cv2.cvtColor(x.astype(np.float32) / 255, cv2.COLOR_RGB2LAB)[0, 0, 1]
+         for x in (skin, photo.apply(skin, green, np.ones((8, 8), np.float32)))]
+    assert a[0] > 14 and a[1] < 7

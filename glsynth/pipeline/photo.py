@@ -24,7 +24,8 @@ Order (the order light takes through a camera), each step optional:
 7. sensor noise: shot noise (variance ``a * x``, Gaussian approximation of Poisson)
    plus read noise (std ``b``), ``x`` in linear units, then clipped to [0, 1]
 8. white balance / colour temperature: channel gains ``R 2^(t/2)``, ``B 2^(-t/2)``,
-   ``G 2^g`` (``t`` warm/cool, ``g`` green/magenta tint)
+   ``G 2^g`` (``t`` warm/cool, ``g`` green/magenta tint); a share of images
+   (``cast_share``) draws ``t`` and ``g`` from the wider cast ranges instead
 9. linear -> sRGB, rounded to 8 bits
 10. tone: the phone's rendering of its sRGB image, an S curve
     ``(1 - c) x + c x^2 (3 - 2 x)`` (mid-tones steeper by ``c / 2``, black, mid-grey and
@@ -100,7 +101,9 @@ def sample_params(pc, rng, focus_distance: float, focal_px: float = 1.0) -> dict
     angle = 180.0 * float(rng.random())
     shot, read = _u(rng, pc.shot_noise), _u(rng, pc.read_noise)
     noise_seed = int(rng.integers(0, 2**31 - 1))
-    wb, tint = _u(rng, pc.white_balance), _u(rng, pc.tint)
+    cast = float(rng.random()) < pc.cast_share
+    wb = _u(rng, pc.cast_white_balance if cast else pc.white_balance)
+    tint = _u(rng, pc.cast_tint if cast else pc.tint)
     ev = _u(rng, pc.exposure)
     vig = _u(rng, pc.vignetting)
     ca = _u(rng, pc.chromatic_aberration)
@@ -123,7 +126,7 @@ def sample_params(pc, rng, focus_distance: float, focal_px: float = 1.0) -> dict
     if shot > 0 or read > 0:
         fx["noise"] = {"shot": shot, "read": read, "seed": noise_seed}
     if wb != 0 or tint != 0:
-        fx["white_balance"] = {"temperature": wb, "tint": tint,
+        fx["white_balance"] = {"temperature": wb, "tint": tint, "cast": cast,
                                "gains": [2 ** (wb / 2), 2 ** tint, 2 ** (-wb / 2)]}
     if contrast > 0 or saturation > 0:
         fx["tone"] = {"contrast": contrast, "saturation": saturation}
