@@ -657,8 +657,9 @@ def _pityriasis_rosea(b, rng, R):
         b.f["melanin"] *= 1 + 0.2 * w
         # a fine collarette just inside the edge, free towards the centre: a thin
         # translucent rim, not flakes (at this size they were a speckle of dots)
-        collar = smoothstep(r * 0.12, 0.0, np.abs(sd - r * 0.12)) * w
-        b.f["scale"] = np.maximum(b.f["scale"], 0.3 * collar * (0.7 + 0.3 * c.noise(r / 3, 1)))
+        # (a millimetre or two wide on a herald patch, broken in places)
+        collar = smoothstep(r * 0.06, 0.0, np.abs(sd - r * 0.1)) * w
+        b.f["scale"] = np.maximum(b.f["scale"], 0.2 * collar * smoothstep(-1.0, 0.5, c.noise(r / 3, 1)))
         b.f["detail"] *= 1 - 0.3 * collar
         b.outline(w, 0.4)
     return {"arrangement": "widespread", "herald_mm": round(float(2 * r_herald), 1),
