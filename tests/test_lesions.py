@@ -821,3 +821,24 @@ def test_pityriasis_rosea_has_a_central_herald_patch_with_a_red_edge_and_paler_c
         edge, centre = herald & (d > 0.1 * d.max()) & (d < 0.35 * d.max()), d > 0.7 * d.max()
         assert np.median(lab[edge, 1]) > np.median(lab[centre, 1]) + 3, seed
         assert np.median(lab[centre, 1]) > np.median(lab[~ndimage.binary_dilation(f.mask, iterations=5), 1])
+
+
+def test_vitiligo_is_a_whole_white_patch_some_trichrome_or_repigmenting(rng):
+    """Vitiligo loses melanin (milky white on brown skin, L* far above it), is outlined
+    as one patch with its repigmenting islands inside (not holes in the mask), and only
+    some patches are trichrome or repigmenting."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    kinds = set()
+    for seed in rng.integers(2 ** 31, size=16):
+        f = make_condition("vitiligo", [int(seed)], size=128)
+        kinds.add((f.params["trichrome"], f.params["repigmenting"]))
+        holes = lambda m: ndimage.label(ndimage.binary_fill_holes(m) & ~m)[1]
+        if f.params["repigmenting"]:     # its dots pierce the white, not the outline
+            dots = holes(f.mask & (f.f["melanin"] < 0.5))
+            assert holes(f.mask) <= 2 < dots, (holes(f.mask), dots)
+        core = ndimage.distance_transform_edt(f.mask) > 4
+        lab = srgb_to_lab(apply_to_skin(f, reference_skin(5, 128, np.random.default_rng(int(seed)))))
+        lab0 = srgb_to_lab(reference_skin(5, 128, np.random.default_rng(int(seed))))
+        assert np.median(lab[core, 0]) > np.median(lab0[~f.mask, 0]) + 15
+    assert len(kinds) >= 3 and (False, False) in kinds

@@ -621,13 +621,26 @@ def _urticaria(b, rng, R):
 
 
 def _vitiligo(b, rng, R):
+    """Depigmented patches, milky white with the pink of the blood beneath (stark on
+    dark skin), their borders sharp and scalloped; some with a tan middle zone at the
+    edge (trichrome), some repigmenting from the follicles in dots. The outline is the
+    whole patch, islands included, as a dermatologist draws it."""
     c = b.c
-    sd = c.shape("round", R, aspect=rng.uniform(0.5, 1.0), irregular=0.35, warp=0.3)
-    w = b.weight(sd, R * 0.08)
-    repig = smoothstep(1.2, 1.8, c.noise(max(0.5, R / 20), 1))          # perifollicular islands
-    b.mix("melanin", w * (1 - repig), rng.uniform(0.0, 0.15))
-    b.outline(w * (1 - 0.8 * repig), 0.5)
-    return {}
+    sd = c.shape("round", R, aspect=rng.uniform(0.5, 1.0), irregular=0.2, warp=0.15)
+    w = b.weight(sd, R * 0.05)
+    lost = w
+    trichrome = rng.random() < 0.25
+    if trichrome:                                                       # a tan band inside the edge
+        band = R * rng.uniform(0.05, 0.12)
+        lost = w * (0.45 + 0.55 * smoothstep(0.0, band, sd - band))
+    repigmenting = rng.random() < 0.35
+    if repigmenting:                                                    # perifollicular islands
+        lo = rng.uniform(1.2, 1.7)
+        lost = lost * (1 - smoothstep(lo, lo + 0.5, c.noise(max(0.5, R / 20), 1)))
+    b.mix("melanin", lost, rng.uniform(0.0, 0.12))
+    b.erythema(lost, rng.uniform(0.1, 0.3))         # the dermis' blood shows without melanin
+    b.outline(w, 0.5)
+    return {"trichrome": trichrome, "repigmenting": repigmenting}
 
 
 def _pityriasis_rosea(b, rng, R):
