@@ -39,7 +39,7 @@ _XYZ_TO_LINEAR = np.linalg.inv(np.array([[0.4124564, 0.3575761, 0.1804375],
                                          [0.0193339, 0.1191920, 0.9503041]]))
 EPIDERMIS_CM = 0.006                            # 60 um
 EPI_SCATTER = 0.12      # the epidermis scatters 0.12 times as much as the dermis per length
-SURFACE = 0.015         # diffuse share of the surface reflection
+SURFACE = 0.005         # diffuse share of the surface reflection
 PAPILLARY_CM = 0.02     # 200 um of papillary dermis
 RETICULAR_BLOOD = 0.005 # blood volume fraction of the reticular dermis
 HB_G_PER_L = 150.0
