@@ -842,3 +842,16 @@ def test_vitiligo_is_a_whole_white_patch_some_trichrome_or_repigmenting(rng):
         lab0 = srgb_to_lab(reference_skin(5, 128, np.random.default_rng(int(seed))))
         assert np.median(lab[core, 0]) > np.median(lab0[~f.mask, 0]) + 15
     assert len(kinds) >= 3 and (False, False) in kinds
+
+
+def test_seborrhoeic_keratosis_is_stuck_on_with_dark_keratin_in_its_fissures(rng):
+    """A seborrhoeic keratosis stands above the skin over all of it, and the fissures
+    between its ridges (its lowest parts) hold more pigmented keratin than the ridges."""
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=4):
+        f = make_condition("seborrhoeic_keratosis", [int(seed)], size=256)
+        core = ndimage.binary_erosion(f.mask, iterations=4)
+        h, mel = f.f["height"][core], f.f["melanin_add"][core]
+        assert np.percentile(h, 5) > 0.1
+        low, high = h < np.percentile(h, 15), h > np.percentile(h, 85)
+        assert np.median(mel[low]) > np.median(mel[high]) + 0.01, seed

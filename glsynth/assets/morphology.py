@@ -564,14 +564,15 @@ def _seb_keratosis(b, rng, R):
     c = b.c
     sd = c.shape("oval", R, aspect=rng.uniform(0.6, 0.95), irregular=0.12, warp=0.06)
     w = b.weight(sd, R * 0.05)                                          # stuck-on: sharp
-    b.f["melanin_add"] += w * (0.8 + 0.2 * c.noise(R / 4, 2)) * rng.uniform(0.05, 0.3)
-    # a dull, papillomatous surface: rounded lobules (~1 mm) with darker keratin packed
-    # in the crevices between them, keratin plugs, and a few small milia-like cysts
-    lobes = c.noise(max(0.4, R / 12), 2)
-    crevice = 1 - smoothstep(-0.9, -0.1, lobes)
-    b.f["height"] += w * (0.3 + 0.25 * smoothstep(-0.6, 0.9, lobes)) * rng.uniform(0.6, 1.2)
-    b.f["melanin_add"] += w * crevice * rng.uniform(0.05, 0.15)
-    plugs = smoothstep(1.7, 2.3, c.noise(max(0.3, R / 20), 1)) * w     # comedo-like openings
+    b.f["melanin_add"] += w * (0.8 + 0.2 * c.noise(R / 4, 2)) * rng.uniform(0.08, 0.4)
+    # a dull, papillomatous surface: winding ridges (~1 mm, "cerebriform") with darker
+    # keratin packed in the fissures between them, keratin plugs, and a few small
+    # milia-like cysts
+    folds = np.abs(c.noise(max(0.5, R / 8), 2))
+    fissure = 1 - smoothstep(0.0, 0.3, folds)
+    b.f["height"] += w * (0.3 + 0.25 * smoothstep(0.0, 0.8, folds)) * rng.uniform(0.6, 1.2)
+    b.f["melanin_add"] += w * fissure * rng.uniform(0.05, 0.15)
+    plugs = smoothstep(1.9, 2.4, c.noise(max(0.3, R / 20), 1)) * w     # comedo-like openings
     b.f["melanin_add"] += 0.4 * plugs
     b.f["detail"] *= 1 + 0.3 * w
     cysts = smoothstep(1.8, 2.4, c.noise(max(0.25, R / 25), 1)) * w     # milia-like cysts
