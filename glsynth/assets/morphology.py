@@ -645,8 +645,9 @@ def _vitiligo(b, rng, R):
 
 
 def _pityriasis_rosea(b, rng, R):
-    """A herald patch (an oval 2-10 cm, at the centre) and, days later, smaller daughter
-    ovals along the skin's tension lines. Each is salmon at its edge, its centre paler
+    """A herald patch (an oval a quarter to two fifths of the extent across, at the
+    centre) and, days later, smaller daughter ovals along the skin's tension lines.
+    Each is salmon at its edge, its centre paler
     and finely wrinkled, a thin collarette of scale just inside the edge facing inwards;
     on pigmented skin they read grey-brown (a little more melanin)."""
     c = b.c
@@ -806,8 +807,10 @@ def _purpura(b, rng, R):
     centres = arrange(c, "grouped", n, R * 1.1, r_lo * 1.5)
     radii = rng.uniform(r_lo, r_hi, len(centres))
     if kind == "petechiae" and len(centres) > 1:                        # pinpoints stay apart
-        gap = np.hypot(*(np.array(centres)[:, None] - np.array(centres)[None]).transpose(2, 0, 1))
-        radii = np.minimum(radii, 0.4 * (gap + np.diag(np.full(len(centres), np.inf))).min(1))
+        pts = np.array(centres)
+        gap = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+        np.fill_diagonal(gap, np.inf)
+        radii = np.minimum(radii, 0.4 * gap.min(1))            # at most 0.4 of the nearest gap
     sd, index = spots(c, centres, radii)
     r = radii[index].astype(np.float32)            # each cell's own spot (index -1 is harmless:
     w = b.weight(sd, r * 0.4, "ill-defined")       # sd there is far below the fade)
