@@ -682,13 +682,15 @@ def test_eczema_excoriations_lie_under_dark_dried_blood(rng):
     erosions showing between a few lumps of crust."""
     from glsynth.assets.morphology import CRUST_COLOURS, make_condition
     crusted = []
-    for seed in rng.integers(2 ** 31, size=8):
+    for seed in rng.integers(2 ** 31, size=40):    # (not every eczema is scratched)
         f = make_condition("eczema", [int(seed)], size=256)
         eroded = f.f["epidermis"] < 0.5
         if eroded.sum() > 5:
             crusted.append(np.median(f.f["crust"][eroded]) > 0.45)
         assert f.crust_rgb == CRUST_COLOURS["haemorrhagic"]
-    assert crusted and all(crusted), crusted
+        if len(crusted) == 4:
+            break
+    assert len(crusted) == 4 and all(crusted), crusted
 
 
 def test_spots_match_the_nearest_spot_everywhere(rng):
