@@ -647,24 +647,23 @@ def _vitiligo(b, rng, R):
 def _pityriasis_rosea(b, rng, R):
     """A herald patch (an oval a quarter to two fifths of the extent across, at the
     centre) and, days later, smaller daughter ovals along the skin's tension lines.
-    Each is salmon at its edge, its centre paler
-    and finely wrinkled, a thin collarette of scale just inside the edge facing inwards;
-    on pigmented skin they read grey-brown (a little more melanin)."""
+    Each is salmon at its edge, its centre paler and finely wrinkled, a thin collarette
+    of scale just inside the edge facing inwards; on pigmented skin they read
+    grey-brown (a little more melanin)."""
     c = b.c
     axis = rng.uniform(0, np.pi)
     r_herald = R * rng.uniform(0.25, 0.4)
-    herald = (np.zeros(2), r_herald, c.shape("oval", r_herald, aspect=rng.uniform(0.55, 0.8),
-                                             irregular=0.05, warp=0.03))
-    # daughters spread over the region, clear of the herald
-    pts = [p for p in arrange(c, "widespread", int(rng.integers(6, 16)), R, R * 0.18)
-           if np.hypot(*p) > 1.6 * r_herald]
-    daughters = []
-    for p in pts:
-        r = R * rng.uniform(0.06, 0.14)
-        daughters.append((p, r, c.shape("oval", r, centre=p, aspect=0.55, angle=axis,
-                                        irregular=0.05, warp=0.03)))
+    # (radius, signed distance) of each oval: the herald, then daughters spread over the
+    # region clear of it
+    ovals = [(r_herald, c.shape("oval", r_herald, aspect=rng.uniform(0.55, 0.8),
+                                irregular=0.05, warp=0.03))]
+    for p in arrange(c, "widespread", int(rng.integers(6, 16)), R, R * 0.18):
+        if np.hypot(*p) > 1.6 * r_herald:
+            r = R * rng.uniform(0.06, 0.14)
+            ovals.append((r, c.shape("oval", r, centre=p, aspect=0.55, angle=axis,
+                                     irregular=0.05, warp=0.03)))
     salmon = rng.uniform(2.0, 3.2)
-    for _, r, sd in [herald] + daughters:
+    for r, sd in ovals:
         w = b.weight(sd, r * 0.2, "ill-defined")
         # the edge is the reddest; the centre clears towards the skin's own colour
         ring = 1 - 0.75 * smoothstep(r * 0.1, r * 0.55, sd)
@@ -678,7 +677,7 @@ def _pityriasis_rosea(b, rng, R):
         b.f["detail"] *= 1 - 0.3 * collar
         b.outline(w, 0.4)
     return {"arrangement": "widespread", "herald_mm": round(float(2 * r_herald), 1),
-            "daughters": len(daughters)}
+            "daughters": len(ovals) - 1}
 
 
 def _ulcer(b, rng, R):
