@@ -299,10 +299,10 @@ class ViewsConfig:
                               within=Interval(0, 90, hi_open=True))
     closeup_w: list = key([0.04, 0.6], "close-ups: camera distance limits (m)",
                           pair=between(1e-4, 1e4))
-    closeup_min_fov_deg: float = key(8.0, "close-ups: a lesion too small to fill its share of the frame "
-                                     "from closeup_w's nearest distance narrows the field of view "
-                                     "(a telephoto lens or a crop) down to this (degrees)",
-                                     within=Interval(0.5, 179))
+    closeup_min_width: float = key(0.015, "close-ups: the narrowest frame on the skin (m): a clinical "
+                                   "camera at its closest (about 1:1 macro) frames 1.5-3 cm, so a "
+                                   "lesion too small to fill its share of that fills less of it",
+                                   within=between(1e-5, 10))
     closeup_flash: float = key(0.6, "close-ups: probability of a flash", within=between(0, 1))
     regional_fill: list = key([0.9, 1.8], "regional views: body part width (its extent across its "
                               "main axis) / frame width",

@@ -293,10 +293,11 @@ def test_stages_release_the_renderer_they_make(tmp_path, renderer_spy):
 def test_closeups_frame_a_lesion_at_the_requested_fraction(renderer, rng, radius_mm):
     """A disc lesion on a plane, seen square-on: its share of the rendered frame is the
     requested one; a lesion too small for the nearest distance narrows the field of
-    view (down to closeup_min_fov_deg, below which it fills less)."""
+    view, and one too small for the narrowest frame (closeup_min_width) fills less."""
     from glsynth.pipeline import views as V
     frac = rng.uniform(0.05, 0.2)
-    v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0").views
+    v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0",
+                     "views.closeup_min_width=0.005").views
     r = radius_mm / 1000
     centre = np.r_[rng.uniform(-0.1, 0.1, 2), 0.0]
     a, d = rng.uniform(0, 2 * np.pi, 4000), r * np.sqrt(rng.uniform(0, 1, 4000))
@@ -315,9 +316,9 @@ def test_closeups_frame_a_lesion_at_the_requested_fraction(renderer, rng, radius
     if radius_mm == 12.0:
         assert fov == v.fov_deg and abs(got - frac) < 0.1 * frac
     elif radius_mm == 1.5:
-        assert w == v.closeup_w[0] and v.closeup_min_fov_deg < fov < v.fov_deg and abs(got - frac) < 0.1 * frac
+        assert w == v.closeup_w[0] and fov < v.fov_deg and abs(got - frac) < 0.1 * frac
     else:
-        assert w == v.closeup_w[0] and fov == v.closeup_min_fov_deg and got < 0.5 * frac
+        assert w == v.closeup_w[0] and abs(side - v.closeup_min_width) < 1e-9 and got < 0.5 * frac
 
 
 def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):

@@ -111,20 +111,21 @@ def _wild_camera(mesh, lesion_sites, rng, v):
 def _closeup_camera(lesion_sites, rng, v):
     """A clinical close-up: a lesion filling a fraction of the frame (log-uniform in
     views.closeup_fraction, as area), seen within views.closeup_tilt of its normal,
-    its centre off the image centre by up to a fifth of the frame. A lesion too small
-    to fill its share from the nearest distance (views.closeup_w) is framed as a
-    phone's telephoto lens or a crop does: a narrower field of view, down to
-    views.closeup_min_fov_deg. Returns (point, normal, direction, w, centre, fov_deg)."""
+    its centre off the image centre by up to a fifth of the frame. The frame is never
+    narrower than views.closeup_min_width (a small lesion fills less of it, as in a
+    clinician's macro photograph); a frame narrower than views.fov_deg covers from the
+    nearest distance (views.closeup_w) is had by narrowing the field of view, as a
+    phone's telephoto lens or a crop does. Returns (point, normal, direction, w, centre, fov_deg)."""
     k = int(rng.integers(len(lesion_sites)))
     site = lesion_sites[k]
     lo, hi = v.closeup_fraction
     frac = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
-    width = np.sqrt(site.area / frac)                       # frame width on the surface
+    width = max(np.sqrt(site.area / frac), v.closeup_min_width)   # frame width on the surface
     w_wanted = width / (2 * np.tan(np.radians(v.fov_deg) / 2))
     w = float(np.clip(w_wanted, *v.closeup_w))
     fov = v.fov_deg
     if w_wanted < v.closeup_w[0]:
-        fov = float(np.clip(np.degrees(2 * np.arctan(width / (2 * w))), v.closeup_min_fov_deg, v.fov_deg))
+        fov = float(np.degrees(2 * np.arctan(width / (2 * w))))
     half_tan = np.tan(np.radians(fov) / 2)
     centroid = site.points.mean(0)
     aim = centroid + rng.uniform(-0.2, 0.2, 3) * 2 * w * half_tan
