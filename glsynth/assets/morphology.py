@@ -746,10 +746,10 @@ def _lupus(b, rng, R):
 
 def _pyogenic_granuloma(b, rng, R):
     """Pyogenic granuloma (lobular capillary haemangioma): a domed, often lobulated,
-    friable papule, crimson to raspberry (much blood, little collagen to scatter), its thin
-    epidermis glistening and eroded in places, sometimes under dark dried blood, with a
-    fine collarette of scale at its base. Round, so a flash leaves a small highlight on
-    it, not a mirror."""
+    friable papule, crimson to raspberry (much blood, little collagen to scatter), its
+    epidermis stretched thin, glistening and eroded in places, sometimes under dark dried
+    blood, in half of draws with a fine collarette of scale at its base. Round, so a
+    flash leaves a small highlight on it, not a mirror."""
     c = b.c
     sd = c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.08, warp=0.04)
     w = b.weight(sd, R * 0.08)
@@ -757,6 +757,7 @@ def _pyogenic_granuloma(b, rng, R):
     lobes = smoothstep(-1.0, 1.0, c.noise(R * 0.6, 2))
     cleft = (1 - smoothstep(0.0, 0.2, np.abs(c.noise(R * 0.5, 1)))) * rng.uniform(0.2, 0.5)
     raw = smoothstep(-0.4, 0.6, c.noise(R * 0.4, 2)) * rng.uniform(0.5, 1.0)   # eroded surface
+    b.mix("epidermis", w, rng.uniform(0.3, 0.6))               # stretched thin over the dome
     b.erode(w * raw, 0.0)
     b.f["blood_add"] += w * (rng.uniform(0.45, 0.75) - ERODED_BLOOD * raw) * (1 + 0.3 * cleft)
     b.mix("oxygen", w, rng.uniform(0.8, 0.92) - 0.1 * cleft)
@@ -769,10 +770,11 @@ def _pyogenic_granuloma(b, rng, R):
     if rng.random() < 0.4:                                     # friable: it has bled
         spot = smoothstep(0.55, 1.3, c.noise(R * 0.5, 2)) * w
         b.crust(spot, 1.0, "haemorrhagic")
-    collar = smoothstep(R * 0.15, 0, np.abs(sd + R * 0.04))
-    b.scale(collar, 0.5, 0.25, "white")
+    collarette = rng.random() < 0.5
+    if collarette:
+        b.scale(smoothstep(R * 0.08, 0, np.abs(sd + R * 0.03)), 0.5, 0.25, "white")
     b.outline(w, 0.4)
-    return {"crust_rgb": CRUST_COLOURS["haemorrhagic"]}
+    return {"crust_rgb": CRUST_COLOURS["haemorrhagic"], "collarette": collarette}
 
 
 def _purpura(b, rng, R):
