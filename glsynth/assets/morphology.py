@@ -751,7 +751,7 @@ def _pyogenic_granuloma(b, rng, R):
     blood, in half of draws with a fine collarette of scale at its base. Round, so a
     flash leaves a small highlight on it, not a mirror."""
     c = b.c
-    sd = c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.08, warp=0.04)
+    sd = c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.04, warp=0.02)
     w = b.weight(sd, R * 0.08)
     # lobules a third of the lesion across, the clefts between them deeper and darker
     lobes = smoothstep(-1.0, 1.0, c.noise(R * 0.6, 2))
@@ -768,7 +768,7 @@ def _pyogenic_granuloma(b, rng, R):
     b.f["height"] += rng.uniform(0.5, 0.9) * R * dome * w
     b.f["gloss"] = np.maximum(b.f["gloss"], w * (0.45 + 0.35 * raw))
     if rng.random() < 0.4:                                     # friable: it has bled
-        spot = smoothstep(0.55, 1.3, c.noise(R * 0.5, 2)) * w
+        spot = smoothstep(0.6, 1.2, c.noise(R * 0.8, 1)) * w     # a dark clot or two
         b.crust(spot, 1.0, "haemorrhagic")
     collarette = rng.random() < 0.5
     if collarette:
