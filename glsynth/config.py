@@ -286,7 +286,7 @@ class ViewsConfig:
     oil: list = key([0.1, 0.7], "skin: scales the body's oiliness map", pair=between(0, 1))
     relief: list = key([0.7, 1.3], "skin: scales the micro-relief", pair=between(0, 10))
     detail: bool = key(True, "skin: micro-relief and hair")
-    framing: dict = key({"closeup": 0.6, "regional": 0.25, "wild": 0.15},
+    framing: dict = key({"closeup": 0.7, "regional": 0.25, "wild": 0.05},
                         "weights of the view kinds (pipeline/views.py): closeup (a lesion filling "
                         "closeup_fraction of the frame), regional (a body part fills the frame), "
                         "wild (the paper's: a surface point or lesion at distance w)",
