@@ -160,13 +160,16 @@ void main() {
     // the same tile u_macro_scale times larger, offset: coarser furrows across several
     // plateaus, and the sum of two incommensurate periods does not repeat. They deepen
     // as the square of the relief level (0.5 on most skin): the coarse criss-cross
-    // furrows of aged skin, knuckles and elbows, hardly any on a young face
+    // furrows of aged skin, knuckles and elbows, hardly any on a young face. Only their
+    // slopes: the tile's albedo (dark furrow walls, each plateau a shade of its own) at
+    // 2 mm cells painted a crackle glaze of dark lines and flat-toned polygons on
+    // close-ups; a coarse furrow shows by its shading, as in a photograph
     float level = 2.0 * prm.r;
     float macro_w = u_macro_weight * min(level * level, 2.0);
     vec3 macro_at = world / u_macro_scale + vec3(0.37, 0.61, 0.23) * u_relief_period;
     float macro_lod = lod - log2(u_macro_scale);
-    p1.rgb += macro_w * tile_at(u_relief, w.x, macro_at, u1, v1, u_relief_period, macro_lod).rgb;
-    p2.rgb += macro_w * tile_at(u_relief, w.y, macro_at, u2, v2, u_relief_period, macro_lod).rgb;
+    p1.rg += macro_w * tile_at(u_relief, w.x, macro_at, u1, v1, u_relief_period, macro_lod).rg;
+    p2.rg += macro_w * tile_at(u_relief, w.y, macro_at, u2, v2, u_relief_period, macro_lod).rg;
     // at relief level 1 (0.5 in the map, most skin) the tile's own depths; lichenified
     // skin (detail weight above 1) deepens it
     float relief = level * u_relief_amount * max(detail_weight, 1.0);
