@@ -275,8 +275,10 @@ class ViewsConfig:
                         "distance, as sampled at the viewed point; the paper's do not")
     flash_diffuse: list = key([0.3, 1.0], "flash: diffuse intensity", pair=_LIGHT)
     flash_specular: list = key([0.0, 0.1], "flash: specular intensity", pair=_LIGHT)
-    flash_room: list = key([0.3, 1.0], "flash: the room light's intensity when the flash fires, "
-                           "relative to its own draw (the camera exposes for the flash)",
+    flash_room: list = key([0.05, 1.0], "flash: the room light's intensity when the flash fires, "
+                           "relative to its own draw (the camera exposes for the flash: a phone "
+                           "in a lit room 1-2 stops under, a clinical macro flash at f/8-16 "
+                           "4 or more); a room background is dimmed as much",
                            pair=between(0, 1))
     ambient_tint: float = key(0.5, "tint the ambient light by the background's mean colour (0: none)",
                               within=between(0, 1))

@@ -231,6 +231,55 @@ def test_composite_is_the_rounded_premultiplied_over(rng):
         assert got.dtype == np.uint8 and got.shape == (h, w, 3)
         np.testing.assert_array_equal(got, expected)
 
+def test_expose_scales_light_in_linear_space(rng):
+    """expose() is the sRGB transfer function undone, scaled and redone (within one code
+    of the float formula, on fresh random pixels and gains); gain 1 is the same image."""
+    from glsynth.pipeline.views import expose
+    def srgb(x):
+        return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 0) ** (1 / 2.4) - 0.055)
+    img = rng.integers(0, 256, (37, 53, 3)).astype(np.uint8)
+    assert expose(img, 1.0) is img
+    for gain in rng.uniform(0.02, 1.0, 5):
+        s = img / 255.0
+        lin = np.where(s <= 0.04045, s / 12.92, ((s + 0.055) / 1.055) ** 2.4)
+        want = np.clip(np.rint(255 * srgb(lin * gain)), 0, 255)
+        got = expose(img, gain)
+        assert got.dtype == np.uint8 and np.abs(got - want).max() <= 1
+
+
+def test_a_flash_dims_a_room_background_but_not_a_drape(tmp_path):
+    """The camera exposes for its flash: the room light and a room behind the patient come
+    out at the flash_room draw (background pixels of two runs differing only in it
+    differ by their ratio in linear light), while a drape against the patient, lit by the
+    flash, keeps its brightness; the record says which."""
+    from glsynth.assets.backgrounds import NEAR_BACKDROPS
+    from glsynth.dataformat import SEMANTIC_BACKGROUND, RunFolder
+    from glsynth.pipeline import views as V
+    from glsynth.pipeline.views import expose
+    runs = {}
+    for k in (0.5, 0.1):
+        out = tmp_path / f"k{k}"
+        gs.Generate2DViews(small_config("views.flash=1", "views.framing={wild: 1}", f"views.flash_room=[{k}, {k}]",
+                                        "backgrounds.clinical=0", "backgrounds.blur=[0, 0]", "photo.enabled=false",
+                                        "lesions.per_body=0"), out).synthesize_views(progress=False)
+        runs[k] = RunFolder(out)
+    seen = 0
+    for sid in runs[0.5].sample_ids():
+        bright, dim = runs[0.5], runs[0.1]
+        assert bright.record(sid)["background"]["exposure"] == 0.5 and dim.record(sid)["background"]["exposure"] == 0.1
+        bg = cv2.erode((bright.layer(sid, "semantic") == SEMANTIC_BACKGROUND).astype(np.uint8), np.ones((3, 3))) > 0
+        if bg.sum() < 50:
+            continue
+        seen += 1
+        # two roundings of uint8 apart: within 2 codes
+        assert np.abs(expose(bright.image(sid), 0.2)[bg].astype(int) - dim.image(sid)[bg]).max() <= 2
+        assert dim.image(sid)[bg].mean() < 0.6 * bright.image(sid)[bg].mean()
+    assert seen >= 2
+    scene = V.ViewScene(camera=None, light=None, material=None, centre="surface", room_exposure=0.2)
+    assert V.background_exposure(scene, {"kind": "wall"}) == 0.2 and V.background_exposure(scene, {}) == 0.2
+    assert all(V.background_exposure(scene, {"kind": k}) == 1.0 for k in NEAR_BACKDROPS)
+
+
 @pytest.fixture
 def renderer_spy(monkeypatch):
     """(made, closed): every Renderer made and every one closed, in order."""

@@ -152,6 +152,11 @@ BACKDROPS = {
 }
 
 
+# backdrops that lie against the patient, lit by a flash as the skin is (a room or a wall
+# is far behind and gets only the room's light)
+NEAR_BACKDROPS = ("drape", "sheet", "paper", "fabric")
+
+
 class ProceduralBackgrounds(_Backgrounds):
     """`n` seeded backgrounds, size x size, rendered on access (image i depends only on
     (seed, first + i)): indoor rooms and, with probability ``clinical``, the backdrops of

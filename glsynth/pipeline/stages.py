@@ -351,6 +351,7 @@ class Generate2DViews(_Stage):
         if tint is None:
             bg_index = int(rng.integers(len(backgrounds)))
             blur = float(rng.uniform(*cfg.backgrounds.blur))
+        exposure = V.background_exposure(scene, backgrounds.meta[bg_index])
         cam = scene.camera
         # camera model: its own generator, so switching it on changes no scene parameter
         focus = float(np.linalg.norm(np.subtract(cam.target, cam.eye)))
@@ -368,14 +369,15 @@ class Generate2DViews(_Stage):
         meta = view_record(sid, v.size, scene, attempts=attempt, ambient_tint=tint, photo=photo_params,
                            body={"id": body_id, **_jsonable(body.meta)}, lesions=lesions,
                            nevi=[{"id": k, "box": b} for k, b in layers.get("nevi_boxes", {}).items()],
-                           background={"index": bg_index, "source": cfg.backgrounds.source, "blur": blur},
+                           background={"index": bg_index, "source": cfg.backgrounds.source, "blur": blur,
+                                       "exposure": exposure},
                            fractions=layers["fractions"])
         out, outputs = self.out, cfg.outputs
 
         def finish():
             t0 = time.perf_counter()
             if "rgb" in outputs:
-                image = V.composite(layers["rgba"], background, blur)
+                image = V.composite(layers["rgba"], V.expose(background, exposure), blur)
                 # RGB only: every label layer stays the sharp geometric truth
                 layers["image"] = photo.apply(image, photo_params, layers["depth"])
             write_sample(out, sid, layers, meta, outputs)

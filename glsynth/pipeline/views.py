@@ -14,10 +14,12 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from ..assets.backgrounds import NEAR_BACKDROPS
 from ..camera import Camera
 from ..dataformat import SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN
 from ..errors import GlsynthError
 from ..lighting import Material, PointLight
+from .photo import SRGB_TO_LINEAR, linear_to_srgb8
 
 
 @dataclass
@@ -31,6 +33,9 @@ class ViewScene:
     # unless it is the first surface on the central ray (camera outside, point not hidden)
     point: np.ndarray | None = None
     framing: str = "wild"    # views.framing kind: wild, closeup or regional
+    # the room light's share at the camera's exposure (below 1 when the camera exposes
+    # for its flash): the background photograph, lit by the room, is dimmed by it too
+    room_exposure: float = 1.0
 
     @property
     def lights(self) -> list:
@@ -252,7 +257,7 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
                     oil=float(rng.uniform(*v.oil)), relief=float(rng.uniform(*v.relief)),
                     detail=v.detail)
     material = Material(specular=mat_spec, shininess=shininess, wrap=wrap, **skin)
-    flash = None
+    flash, room_exposure = None, 1.0
     p_flash = v.closeup_flash if framing == "closeup" else v.flash
     if p_flash > 0 and rng.random() < p_flash:
         # a phone flash sits next to the lens: no ambient, the camera sees what it lights
@@ -260,12 +265,13 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
                            specular=rng.uniform(*v.flash_specular), falloff_distance=at_point(eye))
         if v.flash_room != [1.0, 1.0]:
             # the camera exposes for its flash: the room light counts for less
-            k = float(rng.uniform(*v.flash_room))
+            room_exposure = float(rng.uniform(*v.flash_room))
+            k = room_exposure
             light = replace(light, ambient=tuple(k * np.asarray(light.ambient)),
                             diffuse=tuple(k * np.asarray(light.diffuse)),
                             specular=tuple(k * np.asarray(light.specular)))
     return ViewScene(cam, light, material, centre, flash, point=np.asarray(point, np.float64),
-                     framing=framing)
+                     framing=framing, room_exposure=room_exposure)
 
 
 def ambient_tint_from(background, strength) -> tuple:
@@ -411,6 +417,21 @@ def nevi_label_map(body):
     for i, (x0, y0, x1, y1) in enumerate(body.nevi):
         m[max(y0, 0):min(y1, h), max(x0, 0):min(x1, w)] = i + 1
     return m
+
+
+def background_exposure(scene: ViewScene, background_meta: dict) -> float:
+    """How bright the background comes out relative to its photograph: a room (or a
+    wall) behind the patient has only the room's light, which a camera exposing for its
+    flash records at ``scene.room_exposure``; a drape, sheet or clothing against the
+    patient is lit by the flash as the skin is."""
+    return 1.0 if background_meta.get("kind") in NEAR_BACKDROPS else scene.room_exposure
+
+
+def expose(image, gain):
+    """An sRGB uint8 image with its light scaled by ``gain`` (in linear light)."""
+    if gain == 1.0:
+        return image
+    return cv2.LUT(np.ascontiguousarray(image), linear_to_srgb8(SRGB_TO_LINEAR * np.float32(gain)))
 
 
 def composite(rgba, background, blur_radius):
