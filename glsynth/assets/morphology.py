@@ -685,8 +685,12 @@ def _ulcer(b, rng, R):
     sd = c.shape("round", R, aspect=rng.uniform(0.6, 1.0), irregular=0.2, warp=0.1)
     w_peri = b.weight(sd + R * 0.25, R * 0.2, "ill-defined")
     bed = b.weight(sd, R * 0.05)
-    b.erythema(w_peri, 1.5)
-    b.f["melanin"] *= 1 + 0.8 * w_peri * (1 - bed)                     # periwound darkening
+    b.erythema(w_peri, rng.uniform(0.4, 1.5))       # from a faint pink rim to cellulitis red
+    # periwound darkening, in patches: a uniform 1.8x band left type VI skin a slate ring
+    # (L* 14, chroma 10 round skin at 27 and 27), where dark skin round a real ulcer is a
+    # few L* darker and keeps its colour
+    patches = smoothstep(-1.0, 1.0, c.noise(R / 3, 2))
+    b.f["melanin"] *= 1 + 0.5 * w_peri * (1 - bed) * (0.3 + 0.7 * patches)
     b.erode(bed, rng.uniform(0.5, 2.0))
     # granulation tissue: beefy red, a cobblestone of ~1 mm granules, darker and bluer
     # between them and where the bed is older
