@@ -120,7 +120,8 @@ def _closeup_camera(lesion_sites, rng, v):
     narrower than views.closeup_min_width (a small lesion fills less of it, as in a
     clinician's macro photograph); a frame narrower than views.fov_deg covers from the
     nearest distance (views.closeup_w) is had by narrowing the field of view, as a
-    phone's telephoto lens or a crop does. Returns (point, normal, direction, w, centre, fov_deg)."""
+    phone's telephoto lens or a crop does. Returns (point, normal, direction, w,
+    centre, fov_deg)."""
     k = int(rng.integers(len(lesion_sites)))
     site = lesion_sites[k]
     lo, hi = v.closeup_fraction
@@ -265,8 +266,7 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
                            specular=rng.uniform(*v.flash_specular), falloff_distance=at_point(eye))
         if v.flash_room != [1.0, 1.0]:
             # the camera exposes for its flash: the room light counts for less
-            room_exposure = float(rng.uniform(*v.flash_room))
-            k = room_exposure
+            k = room_exposure = float(rng.uniform(*v.flash_room))
             light = replace(light, ambient=tuple(k * np.asarray(light.ambient)),
                             diffuse=tuple(k * np.asarray(light.diffuse)),
                             specular=tuple(k * np.asarray(light.specular)))
