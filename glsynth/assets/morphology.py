@@ -638,7 +638,7 @@ def _vitiligo(b, rng, R):
     if repigmenting:                                                    # perifollicular islands
         lo = rng.uniform(1.2, 1.7)
         lost = lost * (1 - smoothstep(lo, lo + 0.5, c.noise(max(0.5, R / 20), 1)))
-    b.mix("melanin", lost, rng.uniform(0.0, 0.12))
+    b.mix("melanin", lost, rng.uniform(0.0, 0.04))   # amelanotic: up to 0.12 left type VI skin tan
     b.erythema(lost, rng.uniform(0.1, 0.3))         # the dermis' blood shows without melanin
     b.outline(w, 0.5)
     return {"trichrome": trichrome, "repigmenting": repigmenting}
