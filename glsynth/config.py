@@ -357,7 +357,7 @@ class BackgroundsConfig:
     count: int = key(24, "procedural backgrounds to make", within=at_least(1))
     blur: list = key([0.0, 3.0], "Gaussian blur of the background (px)", pair=between(0, 50))
     clinical: float = key(0.6, "share of procedural backgrounds that are clinical backdrops (drapes, "
-                          "sheets, couch paper, plain walls, clothing; else rooms)", within=between(0, 1))
+                          "sheets, couch paper, plain walls, clothing, black cloth; else rooms)", within=between(0, 1))
 
 
 @dataclass

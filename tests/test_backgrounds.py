@@ -125,3 +125,25 @@ def test_wide_blur_at_reduced_resolution_matches_the_full_blur(rng):
         sigma = float(rng.uniform(4, 50))
         full = cv2.GaussianBlur(mask, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
         assert np.abs(_smooth(mask, sigma) - full).max() < 0.004, (sigma, h, w)
+
+
+def test_clinical_backdrops_come_in_their_shares_and_colours():
+    """With clinical=1 every procedural background is a backdrop, each kind drawn in its
+    share (within sampling error over 400) in a colour near its table's; black cloth is
+    near-black (L* under 15) yet not a flat fill (its folds and weave show), and a sheet
+    or couch paper is light."""
+    from glsynth.assets.backgrounds import BACKDROP_SHARES, BACKDROPS
+    from glsynth.assets.colour import srgb_to_lab
+    bg = procedural_backgrounds(400, seed=3, size=64, clinical=1.0)
+    kinds = [m["kind"] for m in bg.meta]
+    for kind, share in BACKDROP_SHARES.items():
+        got = kinds.count(kind) / len(kinds)
+        assert abs(got - share) < 4 * np.sqrt(share * (1 - share) / len(kinds)), (kind, got)
+    for i in [kinds.index(k) for k in BACKDROP_SHARES]:
+        m, img = bg.meta[i], bg[i]
+        assert min(np.abs(np.subtract(m["colour"], c)).max() for c in BACKDROPS[m["kind"]]) < 40
+        L = srgb_to_lab(img.reshape(-1, 3) / 255.0)[:, 0]
+        if m["kind"] == "dark":
+            assert np.median(L) < 15 and img.std() > 0.5, (np.median(L), img.std())
+        if m["kind"] in ("sheet", "paper"):
+            assert np.median(L) > 70

@@ -149,7 +149,11 @@ BACKDROPS = {
     "paper": [(238, 238, 233), (228, 230, 226)],
     "wall": [(200, 200, 195), (215, 210, 200), (170, 180, 185), (120, 130, 140), (60, 62, 66)],
     "fabric": [(50, 60, 90), (30, 30, 35), (120, 30, 40), (200, 200, 200), (90, 110, 70), (150, 120, 90)],
+    # black velvet or a dark room: medical photography's standard backdrop, and what a
+    # room becomes behind a flash-lit patient (4 of the 9 dev photographs with non-skin)
+    "dark": [(14, 14, 16), (22, 20, 20), (10, 12, 18), (26, 24, 22)],
 }
+BACKDROP_SHARES = {"drape": 0.3, "sheet": 0.2, "paper": 0.1, "wall": 0.15, "fabric": 0.1, "dark": 0.15}
 
 
 # backdrops that lie against the patient, lit by a flash as the skin is (a room or a wall
@@ -161,7 +165,7 @@ class ProceduralBackgrounds(_Backgrounds):
     """`n` seeded backgrounds, size x size, rendered on access (image i depends only on
     (seed, first + i)): indoor rooms and, with probability ``clinical``, the backdrops of
     clinical photographs (surgical drapes, sheets, couch paper, plain walls, clothing
-    fabric)."""
+    fabric, black cloth)."""
 
     def __init__(self, n: int, seed: int = 0, size: int = 512, clinical: float = 0.0, first: int = 0):
         if int(size) < 64:
@@ -182,7 +186,7 @@ class ProceduralBackgrounds(_Backgrounds):
         rng = np.random.default_rng([self.seed, i, 7])
         if rng.random() >= self.clinical:
             return None
-        kind = str(rng.choice(list(BACKDROPS), p=[0.35, 0.2, 0.1, 0.2, 0.15]))
+        kind = str(rng.choice(list(BACKDROP_SHARES), p=list(BACKDROP_SHARES.values())))
         table = BACKDROPS[kind]
         colour = np.clip(np.array(table[rng.integers(len(table))]) + rng.normal(0, 8, 3), 0, 255)
         return {"kind": kind, "colour": tuple(int(c) for c in colour),
@@ -239,7 +243,7 @@ class ProceduralBackgrounds(_Backgrounds):
         a = np.radians(m["angle"])
         u = xx * np.cos(a) + yy * np.sin(a)
         height = np.zeros((n, n), np.float32)
-        if m["kind"] in ("drape", "sheet", "fabric"):
+        if m["kind"] in ("drape", "sheet", "fabric", "dark"):
             # folds: ridges along one direction, bent by noise
             bend = 0.15 * fractal_noise(rng, (n, n), n / 2, octaves=2)
             height += m["folds"] * (np.sin(2 * np.pi * (u + bend) * rng.uniform(2, 5))
@@ -252,7 +256,7 @@ class ProceduralBackgrounds(_Backgrounds):
         shade = 1 + 0.35 * np.clip(gx * np.cos(la) + gy * np.sin(la), -2, 2)
         shade *= 1 - 0.25 * np.hypot(xx - 0.5, yy - 0.5)                  # light falls off
         img = np.array(m["colour"], np.float32)[None, None] * shade[..., None]
-        if m["kind"] in ("drape", "fabric", "sheet"):                     # the weave
+        if m["kind"] in ("drape", "fabric", "sheet", "dark"):             # the weave
             period = rng.uniform(2.5, 5.0)
             weave = np.sin(2 * np.pi * xx * n / period) * np.sin(2 * np.pi * yy * n / period)
             img *= (1 + 0.04 * weave)[..., None]
