@@ -156,6 +156,8 @@ BACKDROPS = {
 BACKDROP_SHARES = {"drape": 0.3, "sheet": 0.2, "paper": 0.1, "wall": 0.15, "fabric": 0.1, "dark": 0.15}
 
 
+# backdrops of cloth: lit across their folds, with a weave
+CLOTH_BACKDROPS = ("drape", "sheet", "fabric", "dark")
 # backdrops that lie against the patient, lit by a flash as the skin is (a room or a wall
 # is far behind and gets only the room's light)
 NEAR_BACKDROPS = ("drape", "sheet", "paper", "fabric")
@@ -243,7 +245,7 @@ class ProceduralBackgrounds(_Backgrounds):
         a = np.radians(m["angle"])
         u = xx * np.cos(a) + yy * np.sin(a)
         height = np.zeros((n, n), np.float32)
-        if m["kind"] in ("drape", "sheet", "fabric", "dark"):
+        if m["kind"] in CLOTH_BACKDROPS:
             # folds: ridges along one direction, bent by noise
             bend = 0.15 * fractal_noise(rng, (n, n), n / 2, octaves=2)
             height += m["folds"] * (np.sin(2 * np.pi * (u + bend) * rng.uniform(2, 5))
@@ -256,7 +258,7 @@ class ProceduralBackgrounds(_Backgrounds):
         shade = 1 + 0.35 * np.clip(gx * np.cos(la) + gy * np.sin(la), -2, 2)
         shade *= 1 - 0.25 * np.hypot(xx - 0.5, yy - 0.5)                  # light falls off
         img = np.array(m["colour"], np.float32)[None, None] * shade[..., None]
-        if m["kind"] in ("drape", "fabric", "sheet", "dark"):             # the weave
+        if m["kind"] in CLOTH_BACKDROPS:                                  # the weave
             period = rng.uniform(2.5, 5.0)
             weave = np.sin(2 * np.pi * xx * n / period) * np.sin(2 * np.pi * yy * n / period)
             img *= (1 + 0.04 * weave)[..., None]
