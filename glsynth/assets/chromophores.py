@@ -13,6 +13,13 @@ Two layers, 400-700 nm in 10 nm steps:
   dermal melanin (``dermal_melanin``, the blue-grey of melanin deep in the skin);
 * the **reticular dermis** below scatters the same, with a little blood.
 
+Blood is not spread evenly through the dermis but packed in vessels (``VESSEL_CM``
+radius), so where it absorbs strongly the light that reaches a vessel's core is already
+spent: its absorption is scaled by (1 - exp(-2 mu R)) / (2 mu R) (the vessel packaging
+correction of Svaasand et al. and Verkruysse et al.). This flattens haemoglobin's
+Soret band near 420 nm far more than its 540-580 nm bands, so blood-rich skin keeps
+some blue and reads crimson rather than orange.
+
 Layers combine by Kubelka-Munk's formulas (thin layers over the semi-infinite
 reticular dermis), the epidermis also back-scattering a little; reflectance spectra are weighted by the CIE 1931 colour matching
 functions (Wyman, Sloan and Shirley's multi-lobe fit) under a 6500 K blackbody, white
@@ -43,6 +50,7 @@ SURFACE = 0.005         # diffuse share of the surface reflection
 PAPILLARY_CM = 0.02     # 200 um of papillary dermis
 RETICULAR_BLOOD = 0.005 # blood volume fraction of the reticular dermis
 HB_G_PER_L = 150.0
+VESSEL_CM = 0.0015      # radius of the dermal vessels holding the blood (15 um)
 HB_MOLAR_MASS = 64500.0
 
 # molar extinction (cm^-1 / M) of oxy- and deoxyhaemoglobin at anchor wavelengths (Prahl)
@@ -62,6 +70,14 @@ def _interp_log(x, xs, ys):
     return np.exp(np.interp(x, xs, np.log(ys)))
 
 
+def _packed(mu_blood):
+    """Whole blood's absorption (/cm) as it acts when packed in vessels of radius
+    VESSEL_CM: unchanged where blood is nearly transparent, divided by up to ~7 in the
+    Soret band."""
+    x = 2.0 * mu_blood * VESSEL_CM
+    return mu_blood * -np.expm1(-x) / x
+
+
 @lru_cache(maxsize=1)
 def _spectra():
     lam = LAMBDA
@@ -70,6 +86,7 @@ def _spectra():
     molar_hb = HB_G_PER_L / HB_MOLAR_MASS
     hbo2 = 2.303 * molar_hb * _interp_log(lam, _HB_ANCHORS["lambda"], _HB_ANCHORS["oxy"])
     hb = 2.303 * molar_hb * _interp_log(lam, _HB_ANCHORS["lambda"], _HB_ANCHORS["deoxy"])
+    hbo2, hb = _packed(hbo2), _packed(hb)
     bili = 2.303 * 1e-3 * _BILI_MAX * np.exp(-0.5 * ((lam - _BILI_PEAK) / _BILI_WIDTH) ** 2)
     scat = 46.0 * (lam / 500.0) ** -1.42
     # CIE 1931 2-degree colour matching functions, Wyman-Sloan-Shirley multi-lobe fit
