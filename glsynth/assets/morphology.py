@@ -692,14 +692,21 @@ def _ulcer(b, rng, R):
     patches = smoothstep(-1.0, 1.0, c.noise(R / 3, 2))
     b.f["melanin"] *= 1 + 0.5 * w_peri * (1 - bed) * (0.3 + 0.7 * patches)
     b.erode(bed, rng.uniform(0.5, 2.0))
-    # granulation tissue: beefy red, a cobblestone of ~1 mm granules, darker and bluer
-    # between them and where the bed is older
-    gran = smoothstep(-0.5, 1.0, c.noise(max(0.5, R / 12), 2))
-    granules = 1 - smoothstep(0.0, 0.8, np.abs(c.noise(max(0.25, min(1.2, R / 15)), 2)))
-    b.f["blood_add"] += bed * (0.45 - ERODED_BLOOD + 0.1 * gran + 0.15 * granules)
-    b.mix("oxygen", bed * (1 - 0.5 * granules), 0.6)
-    b.mix("scatter", bed, rng.uniform(0.3, 0.6))                         # new vessels, little collagen
-    b.f["height"] += bed * (0.08 * gran + 0.12 * granules)
+    # granulation tissue: a cobblestone of round granules about a millimetre across
+    # (each a tuft of capillary loops: a bright red dome, darker and bluer in the clefts
+    # between), in zones of different age and perfusion, from beefy red to dusky maroon
+    wall, tuft, _ = b._plates(float(np.clip(R / 12, 0.6, 1.6)))
+    granule = smoothstep(0.0, 0.3, wall) * (0.6 + 0.4 * tuft)
+    dusky = smoothstep(-0.2, 1.2, c.noise(R / 2.5, 2)) * rng.uniform(0.3, 1.0)
+    b.f["blood_add"] += bed * (0.4 - ERODED_BLOOD + 0.15 * granule + 0.2 * dusky)
+    b.mix("oxygen", bed, 0.8 - 0.25 * (1 - granule) - 0.4 * dusky)
+    b.mix("scatter", bed, rng.uniform(0.15, 0.4))                        # new vessels, little collagen
+    b.f["height"] += bed * 0.2 * granule
+    # new epithelium creeping in from the edge: a pink, shiny band where the epidermis
+    # is thin again and the granulation beneath shows through it
+    margin = bed * (1 - smoothstep(0.0, rng.uniform(0.06, 0.2) * R, sd)) * rng.uniform(0.0, 1.0)
+    b.mix("epidermis", margin, 0.35)
+    b.f["blood_add"] -= margin * 0.3
     sloughy = rng.uniform(-0.6, 0.8)                                    # how much of the bed
     slough = smoothstep(sloughy, sloughy + 1.0, c.noise(R / 2.5, 2)) * bed
     b.crust(slough, rng.uniform(0.4, 0.9), "serous")                    # yellow fibrin
@@ -757,14 +764,20 @@ def _pyogenic_granuloma(b, rng, R):
     c = b.c
     sd = c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.04, warp=0.02)
     w = b.weight(sd, R * 0.08)
-    # lobules a third of the lesion across, the clefts between them deeper and darker
-    lobes = smoothstep(-1.0, 1.0, c.noise(R * 0.6, 2))
-    cleft = (1 - smoothstep(0.0, 0.2, np.abs(c.noise(R * 0.5, 1)))) * rng.uniform(0.2, 0.5)
+    # lobules a third to a half of the lesion across, each its own shade from crimson
+    # to dark raspberry (its vessels more or less full and oxygenated); the clefts
+    # between them deeper and darker; fine capillaries speckle each lobule
+    wall, shade, _ = b._plates(R * rng.uniform(0.6, 1.0))
+    lobes = smoothstep(0.0, 0.35, wall)
+    cleft = (1 - smoothstep(0.0, 0.12, wall)) * rng.uniform(0.3, 0.7)
+    speckle = smoothstep(0.5, 1.5, c.noise(max(0.15, R * 0.04), 1))
     raw = smoothstep(-0.4, 0.6, c.noise(R * 0.4, 2)) * rng.uniform(0.5, 1.0)   # eroded surface
     b.mix("epidermis", w, rng.uniform(0.3, 0.6))               # stretched thin over the dome
     b.erode(w * raw, 0.0)
-    b.f["blood_add"] += w * (rng.uniform(0.45, 0.75) - ERODED_BLOOD * raw) * (1 + 0.3 * cleft)
-    b.mix("oxygen", w, rng.uniform(0.8, 0.92) - 0.1 * cleft)
+    b.f["blood_add"] += w * ((rng.uniform(0.45, 0.75) - ERODED_BLOOD * raw) * (0.75 + 0.5 * shade)
+                             * (1 + 0.3 * cleft) + 0.15 * speckle)
+    b.mix("oxygen", w, rng.uniform(0.8, 0.92) - 0.35 * shade * rng.uniform(0.4, 1.0) - 0.15 * cleft
+          - 0.2 * speckle)
     b.mix("scatter", w, rng.uniform(0.08, 0.2))               # vessels, little collagen
     b.f["melanin"] *= 1 - 0.8 * w                              # the epidermis over it is thin
     s = np.clip(sd / R, 0.0, 1.0)
