@@ -509,6 +509,21 @@ def test_an_erosion_is_raw_red_on_every_skin_type(fitz):
     assert np.median(lab[core][:, 1]) > np.median(pale[core][:, 1]) + 5
 
 
+def test_blood_in_vessels_flattens_the_soret_band_so_blood_rich_skin_is_crimson(rng):
+    """Blood packed in vessels: its absorption is unchanged where blood is nearly clear,
+    never more than a vessel can take up (1 / 2R), and never grows less as blood absorbs
+    more; so haemoglobin's Soret band is flattened and an eroded, blood-rich bed keeps
+    some blue: crimson (CIELAB hue below 30 deg), not orange (spread evenly: 34 deg)."""
+    from glsynth.assets import chromophores as C
+    mu = np.sort(10 ** rng.uniform(-3, 5, 200))
+    packed = C._packed(mu)
+    np.testing.assert_allclose(packed[mu < 1e-2], mu[mu < 1e-2], rtol=1e-4)
+    assert (packed <= mu * (1 + 1e-12)).all() and (packed <= (1 + 1e-9) / (2 * C.VESSEL_CM)).all()
+    assert (np.diff(packed) >= -1e-9 * packed[1:]).all()
+    bed = srgb_to_lab(C.skin_rgb(0.01, 0.5, 0.8, epidermis=0.0, scatter=0.3))
+    assert math.degrees(math.atan2(bed[2], bed[1])) < 30 and bed[1] > 30, bed
+
+
 def test_less_dermal_scattering_deepens_the_red_of_blood():
     """Collagen-poor, vessel-rich tissue (granulation, a pyogenic granuloma) scatters less:
     the same blood reads darker and redder than in normal dermis, towards the cherry red of
