@@ -211,7 +211,7 @@ def _crease_tile(seed=0, size=CREASE_SIZE, period=CREASE_PERIOD):
     return np.stack([gx, gy, shade, np.zeros_like(shade)], -1).astype(np.float16)
 
 
-def _meso_tile(seed=0, size=MESO_SIZE, period=MESO_PERIOD, slope=0.04, pigment=0.08, blood=0.1):
+def _meso_tile(seed=0, size=MESO_SIZE, period=MESO_PERIOD, slope=0.04, pigment=0.08, blood=0.05):
     """Soft undulation (RMS slope ``slope``) and mottling of melanin and blood (RMS
     relative absorbance ``pigment``, ``blood``), each the sum of a coarse and a fine
     octave so that no single size shows."""

@@ -556,7 +556,7 @@ class _Painter:
         tone = float(np.clip(L0 / 60.0, 0.55, 1.0))
         L = L0 + tone * (4.0 * low + 3.0 * mid)
         a = (a0 + 3.0 * hue + 1.5 * mid
-             + vis * (3.0 * (uneven - 1.0) * np.clip(hue, 0, None) + 6.0 * uneven * np.clip(blotch, 0, None)))
+             + vis * (3.0 * (uneven - 1.0) * np.clip(hue, 0, None) + 3.0 * uneven * np.clip(blotch, 0, None)))
         b = b0 + 1.5 * low - 1.2 * hue
         # mottling at the scale of millimetres (per texel): uneven melanin and the
         # superficial vascular plexus showing through, what makes real skin up close
@@ -565,8 +565,8 @@ class _Painter:
         # amplitudes (4, 4, 2) gave 0.8 and 0.6, these 1.1 and 0.7
         melanin = nz.fbm(p + 41.0, 110.0, 3)
         blood = nz.fbm(p - 57.0, 140.0, 3)
-        L += tone * 7.0 * melanin - 2.5 * vis * np.clip(blood, 0, None)
-        a += 7.0 * vis * blood + 7.0 * (np.sqrt(uneven) - 1.0) * vis * np.clip(blood, 0, None)
+        L += tone * 7.0 * melanin - 1.8 * vis * np.clip(blood, 0, None)
+        a += 5.0 * vis * blood + 5.0 * (np.sqrt(uneven) - 1.0) * vis * np.clip(blood, 0, None)
         b += tone * 3.5 * melanin
         # pores / fine grain per texel, scaled to the texel footprint
         fine = nz(p, 0.45 / self.texel_m)
