@@ -561,8 +561,9 @@ class _Painter:
         # mottling at the scale of millimetres (per texel): uneven melanin and the
         # superficial vascular plexus showing through, what makes real skin up close
         # anything but an even colour. Against the dev photographs (skin 40-80 px from a
-        # lesion at 512 px, smoothed over 8 px: median |da| 1.9, |db| 1.8) the earlier
-        # amplitudes (4, 4, 2) gave 0.8 and 0.6, these 1.1 and 0.7
+        # lesion at 512 px, smoothed over 8 px: median |da| 1.9, |db| 1.8) amplitudes
+        # (4, 4, 2) gave 0.8 and 0.6, (7, 7, 3.5) 1.1 and 0.7; the redness is back to 5,
+        # as with the centimetre blotches at 7 it read as a rash in regional views
         melanin = nz.fbm(p + 41.0, 110.0, 3)
         blood = nz.fbm(p - 57.0, 140.0, 3)
         L += tone * 7.0 * melanin - 1.8 * vis * np.clip(blood, 0, None)
