@@ -735,13 +735,13 @@ def _lupus(b, rng, R):
     n_res = c.noise(R * 0.35, 2)
     lo = np.percentile(n_res[centre > 0.5], 60) if (centre > 0.5).any() else 0.4
     residual = smoothstep(lo, lo + 0.6, n_res)
-    b.mix("melanin", centre * (1 - 0.8 * residual), rng.uniform(0.05, 0.3))  # depigmented scar
+    b.mix("melanin", centre * (1 - 0.8 * residual), rng.uniform(0.02, 0.15))  # depigmented scar
     vessels = (1 - smoothstep(0.0, 0.06, np.abs(c.noise(max(0.6, R / 12), 2)))) * centre
     b.f["blood_add"] += 0.12 * vessels
     b.f["detail"] *= 1 - 0.7 * centre                                    # atrophy: smooth, shiny
     b.f["gloss"] = np.maximum(b.f["gloss"], 0.25 * centre)
     b.f["height"] += 0.12 * rim - 0.1 * centre
-    b.scale(rim, 0.35, 0.5, "white")                                     # adherent, on the rim
+    b.scale(rim, 0.28, 0.5, "white")                                     # adherent, on the rim
     gap = rng.uniform(1.0, 2.0)
     n = int(np.clip((2 * R / gap) ** 2, 8, 400))
     plugs = arrange(c, "widespread", n, R, gap * 0.45)                 # irregularly spaced
@@ -749,7 +749,7 @@ def _lupus(b, rng, R):
         radii = np.full(len(plugs), max(0.15, 0.8 * c.px)) * rng.uniform(0.8, 1.3, len(plugs))
         plug_sd, _ = spots(c, plugs, radii)
         dots = smoothstep(-c.px, c.px, plug_sd) * w
-        b.f["scale"] = np.maximum(b.f["scale"], 0.85 * dots)
+        b.f["scale"] = np.maximum(b.f["scale"], 0.6 * dots)
         b.f["height"] += 0.05 * dots
     b.outline(w, 0.35)
     return {"follicular_plugs": len(plugs)}
