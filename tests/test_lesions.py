@@ -604,7 +604,7 @@ def test_scale_lies_in_plates_split_by_fissures():
     b = M.Builder(M.Canvas(np.random.default_rng(9), 256, 20.0))
     w = np.ones((256, 256), np.float32)
     b.scale(w, 1.0, 1.5)
-    wall, thickness, _ = b._plates(1.5)
+    wall, thickness, _ = b.cells(1.5)
     cover = b.f["scale"]
     edge, inner = wall < 0.01, wall > 0.2
     assert cover[edge].mean() < 0.7 * cover[inner].mean()
@@ -623,7 +623,7 @@ def test_heavy_scale_sheds_in_patches_of_whole_plates(rng):
     for seed in rng.integers(2 ** 31, size=10):
         b = M.Builder(M.Canvas(np.random.default_rng(int(seed)), 256, 20.0))
         b.scale(np.ones((256, 256), np.float32), 0.8, 1.5)
-        wall, _, plate = b._plates(1.5)
+        wall, _, plate = b.cells(1.5)
         inner = wall > 0.2
         count = np.bincount(plate[inner], minlength=plate.max() + 1)
         mean = np.bincount(plate[inner], b.f["scale"][inner], minlength=len(count)) / np.maximum(count, 1)

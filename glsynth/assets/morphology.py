@@ -227,7 +227,7 @@ class Builder:
         self.f = {k: np.full((n, n), v, np.float32) for k, v in NEUTRAL.items()}
         self.mask = np.zeros((n, n), bool)
         self.instances = np.zeros((n, n), np.uint16)
-        self._plate_cache = {}
+        self._cell_cache = {}
 
     def weight(self, sd, border, kind="sharp"):
         """Coverage 0..1 from a signed distance: sharp (a pixel or two), ill-defined
@@ -269,7 +269,7 @@ class Builder:
         scale is nearly continuous, light scale lies in scattered flakes), thicker plates
         are whiter, and their edges lift (height)."""
         c = self.c
-        wall, thickness, plate = self._plates(flake_mm)
+        wall, thickness, plate = self.cells(flake_mm)     # plates, each its thickness
         # not every edge has split: fissures come and go along the plate edges
         split = smoothstep(-0.6, 0.4, c.noise(flake_mm * 0.8, 2))
         fissure = 1 - split * (1 - smoothstep(0.015, 0.07, wall))
@@ -299,27 +299,28 @@ class Builder:
         self.f["detail"] *= 1 - 0.6 * w * coverage
         return SCALE_COLOURS[colour]
 
-    def _plates(self, flake_mm):
-        """(distance to the nearest plate edge over the plate size, each texel's plate
-        thickness in [0, 1], each texel's plate index) of a tessellation into plates
-        ``flake_mm`` wide, made once per size for this condition."""
-        key = round(float(flake_mm), 4)
-        if key not in self._plate_cache:
+    def cells(self, width_mm):
+        """A tessellation of the grid into ragged cells ``width_mm`` wide (scale's
+        plates, an ulcer's granules, a granuloma's lobules): each texel's distance to
+        its cell's edge over the cell width, its cell's random value in [0, 1] and its
+        cell's index. Made once per width for this condition."""
+        key = round(float(width_mm), 4)
+        if key not in self._cell_cache:
             from .detail import voronoi_walls
             c, n = self.c, self.c.size
-            cell = max(flake_mm / c.px, 1.5)                          # grid pixels per plate
+            cell = max(width_mm / c.px, 1.5)                          # grid pixels per cell
             m = int(min(max((n / cell) ** 2, 4), 40000))
             sites = c.rng.uniform(0, n, (m, 2))
-            # plate edges are ragged, not straight: the grid is warped by a sixth of a plate
+            # cell edges are ragged, not straight: the grid is warped by a sixth of a cell
             yy, xx = np.mgrid[0:n, 0:n] + 0.5
             warp = 0.15 * cell
             xx = xx + warp * noise(c.rng, n, cell, 2)
             yy = yy + warp * noise(c.rng, n, cell, 2)
             edge, i = voronoi_walls(sites, np.stack([xx.ravel(), yy.ravel()], 1))
-            thick = c.rng.random(m)[i]
-            self._plate_cache[key] = ((edge / cell).reshape(n, n).astype(np.float32),
-                                      thick.reshape(n, n).astype(np.float32), i.reshape(n, n))
-        return self._plate_cache[key]
+            value = c.rng.random(m)[i]
+            self._cell_cache[key] = ((edge / cell).reshape(n, n).astype(np.float32),
+                                     value.reshape(n, n).astype(np.float32), i.reshape(n, n))
+        return self._cell_cache[key]
 
     def crust(self, w, coverage, colour="honey"):
         """Dried exudate over ``w``: lumps whose colour darkens where they are thick or
@@ -695,7 +696,7 @@ def _ulcer(b, rng, R):
     # granulation tissue: a cobblestone of round granules about a millimetre across
     # (each a tuft of capillary loops: a bright red dome, darker and bluer in the clefts
     # between), in zones of different age and perfusion, from beefy red to dusky maroon
-    wall, tuft, _ = b._plates(float(np.clip(R / 12, 0.6, 1.6)))
+    wall, tuft, _ = b.cells(float(np.clip(R / 12, 0.6, 1.6)))
     granule = smoothstep(0.0, 0.3, wall) * (0.6 + 0.4 * tuft)
     dusky = smoothstep(-0.2, 1.2, c.noise(R / 2.5, 2)) * rng.uniform(0.3, 1.0)
     b.f["blood_add"] += bed * (0.4 - ERODED_BLOOD + 0.15 * granule + 0.2 * dusky)
@@ -767,7 +768,7 @@ def _pyogenic_granuloma(b, rng, R):
     # lobules a third to a half of the lesion across, each its own shade from crimson
     # to dark raspberry (its vessels more or less full and oxygenated); the clefts
     # between them deeper and darker; fine capillaries speckle each lobule
-    wall, shade, _ = b._plates(R * rng.uniform(0.6, 1.0))
+    wall, shade, _ = b.cells(R * rng.uniform(0.6, 1.0))
     lobes = smoothstep(0.0, 0.35, wall)
     cleft = (1 - smoothstep(0.0, 0.12, wall)) * rng.uniform(0.3, 0.7)
     speckle = smoothstep(0.5, 1.5, c.noise(max(0.15, R * 0.04), 1))
