@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import ImageError, read_rgb
+from .colour import lab_to_srgb
 from .lesions import fractal_noise
 
 log = logging.getLogger(__name__)
@@ -136,7 +137,7 @@ def load_backgrounds(path) -> FolderBackgrounds:
 # and some of: a bright window, a door frame, a picture, furniture boxes, a skirting board.
 
 _WALLS = [(226, 220, 205), (200, 210, 215), (235, 232, 225), (210, 195, 170), (180, 195, 180),
-          (215, 200, 200), (190, 190, 195)]
+          (215, 200, 200), (190, 190, 195), (228, 196, 168), (232, 218, 172)]
 _WOODS = [(150, 105, 65), (120, 80, 50), (175, 140, 100), (95, 65, 45), (185, 160, 125)]
 _TILES = [(200, 200, 195), (150, 150, 150), (215, 205, 185), (120, 110, 100), (230, 230, 230)]
 _FURN = [(90, 60, 40), (60, 60, 65), (140, 110, 80), (200, 200, 195), (70, 90, 110), (110, 40, 40)]
@@ -147,13 +148,15 @@ BACKDROPS = {
     "drape": [(40, 110, 160), (30, 120, 130), (60, 140, 120), (45, 85, 150), (90, 150, 170)],
     "sheet": [(232, 232, 228), (215, 222, 230), (200, 212, 220), (236, 230, 220)],
     "paper": [(238, 238, 233), (228, 230, 226)],
-    "wall": [(200, 200, 195), (215, 210, 200), (170, 180, 185), (120, 130, 140), (60, 62, 66)],
+    "wall": [(200, 200, 195), (215, 210, 200), (170, 180, 185), (120, 130, 140), (60, 62, 66),
+             (225, 192, 160), (196, 120, 80)],
+    # clothing, curtains, towels: any dye (fabric_colour), the table only for reference
     "fabric": [(50, 60, 90), (30, 30, 35), (120, 30, 40), (200, 200, 200), (90, 110, 70), (150, 120, 90)],
     # black velvet or a dark room: medical photography's standard backdrop, and what a
     # room becomes behind a flash-lit patient (4 of the 9 dev photographs with non-skin)
     "dark": [(14, 14, 16), (22, 20, 20), (10, 12, 18), (26, 24, 22)],
 }
-BACKDROP_SHARES = {"drape": 0.3, "sheet": 0.2, "paper": 0.1, "wall": 0.15, "fabric": 0.1, "dark": 0.15}
+BACKDROP_SHARES = {"drape": 0.25, "sheet": 0.18, "paper": 0.1, "wall": 0.12, "fabric": 0.22, "dark": 0.13}
 
 
 # backdrops of cloth: lit across their folds, with a weave
@@ -161,6 +164,16 @@ CLOTH_BACKDROPS = ("drape", "sheet", "fabric", "dark")
 # backdrops that lie against the patient, lit by a flash as the skin is (a room or a wall
 # is far behind and gets only the room's light)
 NEAR_BACKDROPS = ("drape", "sheet", "paper", "fabric")
+
+
+def fabric_colour(rng) -> np.ndarray:
+    """The sRGB colour (0..255) of a garment, curtain or towel: any hue, at lightness
+    L* 15-85, mostly muted (chroma a Beta(1.3, 2.5) draw of 0-75: greys, earth tones,
+    denim) and now and then a strong dye. Skin-like tans, browns and rusts among them,
+    as in clinical photographs, so that hue alone does not tell skin from cloth."""
+    light, chroma, hue = rng.uniform(15, 85), 75 * rng.beta(1.3, 2.5), rng.uniform(0, 2 * np.pi)
+    lab = np.array([light, chroma * np.cos(hue), chroma * np.sin(hue)])
+    return np.clip(np.rint(lab_to_srgb(lab) * 255), 0, 255)
 
 
 class ProceduralBackgrounds(_Backgrounds):
@@ -189,11 +202,20 @@ class ProceduralBackgrounds(_Backgrounds):
         if rng.random() >= self.clinical:
             return None
         kind = str(rng.choice(list(BACKDROP_SHARES), p=list(BACKDROP_SHARES.values())))
-        table = BACKDROPS[kind]
-        colour = np.clip(np.array(table[rng.integers(len(table))]) + rng.normal(0, 8, 3), 0, 255)
-        return {"kind": kind, "colour": tuple(int(c) for c in colour),
-                "folds": float(rng.uniform(0.3, 1.0)), "angle": float(rng.uniform(0, 180)),
-                "light": float(rng.uniform(0, 360))}
+        if kind == "fabric":
+            colour = fabric_colour(rng)
+        else:
+            table = BACKDROPS[kind]
+            colour = np.clip(np.array(table[rng.integers(len(table))]) + rng.normal(0, 8, 3), 0, 255)
+        out = {"kind": kind, "colour": tuple(int(c) for c in colour),
+               "folds": float(rng.uniform(0.3, 1.0)), "angle": float(rng.uniform(0, 180)),
+               "light": float(rng.uniform(0, 360))}
+        if kind == "fabric" and rng.random() < 0.4:   # a striped or checked cloth
+            out.update(pattern=str(rng.choice(["stripes", "check"])),
+                       colour2=tuple(int(c) for c in fabric_colour(rng)),
+                       period=float(np.exp(rng.uniform(np.log(0.01), np.log(0.12)))),
+                       duty=float(rng.uniform(0.15, 0.6)))
+        return out
 
     def _layout(self, i):
         rng = np.random.default_rng([self.seed, i, 0])
@@ -258,6 +280,13 @@ class ProceduralBackgrounds(_Backgrounds):
         shade = 1 + 0.35 * np.clip(gx * np.cos(la) + gy * np.sin(la), -2, 2)
         shade *= 1 - 0.25 * np.hypot(xx - 0.5, yy - 0.5)                  # light falls off
         img = np.array(m["colour"], np.float32)[None, None] * shade[..., None]
+        if "pattern" in m:   # the print follows the cloth (the fold direction)
+            mark = ((u / m["period"]) % 1.0 < m["duty"]).astype(np.float32)
+            if m["pattern"] == "check":
+                across = -xx * np.sin(a) + yy * np.cos(a)
+                mark = np.maximum(mark, ((across / m["period"]) % 1.0 < m["duty"]).astype(np.float32))
+            mark = cv2.GaussianBlur(mark, (0, 0), 0.7)[..., None]
+            img = img * (1 - mark) + np.array(m["colour2"], np.float32) * shade[..., None] * mark
         if m["kind"] in CLOTH_BACKDROPS:                                  # the weave
             period = rng.uniform(2.5, 5.0)
             weave = np.sin(2 * np.pi * xx * n / period) * np.sin(2 * np.pi * yy * n / period)
