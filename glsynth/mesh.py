@@ -31,13 +31,18 @@ class SkinSurface:
     skin, 0 non-skin; uploaded as the colour texture's alpha), or None for 255.
     hair_coords: (F, 3, 2) float32 hair-flow coordinates of each face's corners (scene
     units; +s along the hairs), or None for no hair. hair_rgb: sRGB colour of terminal
-    hair. unit: scene units per metre.
+    hair. unit: scene units per metre. scalp_hair: H x W uint8 coverage of the hair
+    painted as non-skin on the head (0..255, at the colour texture's resolution), shaded
+    as a mass of fibres with strands at the pixel's scale, or None for none; hair_curl:
+    0 straight .. 1 coily, the course of those strands.
     """
     params: np.ndarray
     weight: np.ndarray | None = None
     hair_coords: np.ndarray | None = None
     hair_rgb: tuple = (60, 45, 35)
     unit: float = 1.0
+    scalp_hair: np.ndarray | None = None
+    hair_curl: float = 0.2
 
 
 class Mesh:

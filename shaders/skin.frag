@@ -15,8 +15,11 @@
 // per-vertex hair-flow coordinates, shaded as fibres (Kajiya-Kay) and casting a short
 // parallax shadow, and wrinkles from the crease tile laid across the hair flow. All are
 // scaled by the per-body skin parameters (u_params) and by the texture's alpha, the
-// detail weight: 0 on non-skin, so clothing, scalp hair and eyes get none. Tiles are sampled at an explicit level of detail from the pixel's
-// footprint on the surface, so far views see their average and never alias.
+// detail weight: 0 on non-skin, so clothing, scalp hair and eyes get none. Tiles are
+// sampled at an explicit level of detail from the pixel's footprint on the surface, so
+// far views see their average and never alias. Scalp hair (painted as non-skin; its
+// coverage is the texture's alpha negated) is shaded as a mass of fibres, with strands
+// at the pixel's own scale from noise stretched along the hair flow (scalp_strands).
 #ifndef NUM_LIGHTS
 #define NUM_LIGHTS 1
 #endif
@@ -99,6 +102,58 @@ vec4 tile_at(sampler2D tile, float weight, vec3 p, vec3 eu, vec3 ev, float perio
 }
 #endif
 
+#if HAIR
+uniform float u_hair_curl;         // 0 straight .. 1 coily (SkinSurface.hair_curl)
+
+float hash2(vec2 p) {
+    vec3 q = fract(vec3(p.xyx) * 0.1031);
+    q += dot(q, q.yzx + 33.33);
+    return fract((q.x + q.y) * q.z);
+}
+
+// value noise in [-0.5, 0.5], smooth between the integer lattice points
+float value_noise(vec2 p) {
+    vec2 i = floor(p), f = p - i;
+    f = f * f * f * (f * (6.0 * f - 15.0) + 10.0);   // quintic: no creases at the lattice
+    return mix(mix(hash2(i), hash2(i + vec2(1.0, 0.0)), f.x),
+               mix(hash2(i + vec2(0.0, 1.0)), hash2(i + vec2(1.0, 1.0)), f.x), f.y) - 0.5;
+}
+
+// Brightness of scalp hair strands (mean 0) at hair-flow point st (s along the hairs,
+// t across, metres) for a pixel footprint of px metres: single hairs (70 um), bundles
+// and locks, each octave faded out before a pixel spans its width, so that a far view
+// keeps the texture's colour. Straight hair runs 40 widths along the flow before it
+// changes; coily hair (u_hair_curl 1) is a mat of short, bent strands.
+float scalp_strands(vec2 st, float px) {
+    float stretch = mix(40.0, 1.5, u_hair_curl);
+    float bend = mix(0.0005, 0.0003, u_hair_curl);       // lateral wander (m)
+    float wave = mix(0.008, 0.002, u_hair_curl);         // over this length (m)
+    float t = st.y + bend * value_noise(vec2(st.y / 0.002, st.x / wave));
+    float v = 0.0;
+    float width = 0.00007, amp = 0.55;
+    for (int k = 0; k < 3; ++k) {
+        float fade = 1.0 - smoothstep(0.4, 1.0, px / width);
+        if (fade > 0.0)
+            v += fade * amp * value_noise(vec2(t / width, st.x / (stretch * width)) + 17.0 * float(k));
+        width *= 3.5;
+        amp *= 0.7;
+    }
+    return v;
+}
+#endif
+
+#if HAIR
+// A hair fibre along unit vector fibre lit from l, seen from v (Kajiya-Kay): diffuse by
+// the sine of the light to the fibre, and a specular cone (sine^40 of the half vector)
+vec2 kajiya_kay(vec3 fibre, vec3 l, vec3 v) {
+    float tl = dot(fibre, l);
+    vec3 h = (l + v) / max(length(l + v), 1e-20);
+    float th = dot(fibre, h);
+    float s2 = max(1.0 - th * th, 0.0), s4 = s2 * s2, s16 = s4 * s4 * s4 * s4;
+    return vec2(0.3 + 0.7 * sqrt(max(1.0 - tl * tl, 0.0)), 0.12 * (s16 * s4));
+}
+#endif
+
 vec3 to_linear(vec3 c) {
     return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(0.04045, c));
 }
@@ -124,7 +179,8 @@ void main() {
     vec3 fibre = vec3(0.0);
     // footprint of this pixel on the surface (isotropic, as GL's own LOD)
     float footprint = dot(g_depth, b) * u_pixel_angle / max(abs(dot(ng, v)), 0.2);
-    float detail_weight = tex.a, gloss = 0.0;
+    // (alpha below 0: scalp hair, its coverage)
+    float detail_weight = max(tex.a, 0.0), scalp = max(-tex.a, 0.0), gloss = 0.0;
     vec3 grad = vec3(0.0);         // height gradient of relief and lesions, world units
 #if DECALS
     vec4 daux;
@@ -132,6 +188,7 @@ void main() {
     vec4 dcol = decal_colour(uv, world, footprint, daux, dax, day);
     albedo = mix(albedo, to_linear(dcol.rgb), dcol.a);
     detail_weight = mix(detail_weight, daux.a * DECAL_DETAIL, dcol.a);
+    scalp *= 1.0 - dcol.a;
     gloss = daux.b * dcol.a;
     vec2 dslope = (daux.xy * 255.0 - 128.0) / 127.0 * DECAL_SLOPE * dcol.a;
     grad += dslope.x * dax + dslope.y * day;
@@ -235,6 +292,22 @@ void main() {
     vec4 hsh = textureLod(u_hair, (hc + shift) / u_hair_period, hlod + 1.5);   // first layer only
     hair_shadow = 1.2 * hsh.r * clamp(tt, 0.0, 0.5) + 0.4 * hsh.b * tv;
     fibre = fibre_dir;
+    float strands = 0.0;
+    vec3 mass_fibre = fibre_dir;
+    if (scalp > 0.0) {
+        // scalp hair falls from the crown: down the head, projected on the surface
+        // (smooth, where the hair-flow frame is flat per face and would show the
+        // facets in its highlights); the frame only where the surface faces up
+        vec3 down = vec3(0.0, -1.0, 0.0) - ng * -ng.y;
+        float dl = length(down);
+        mass_fibre = mix(fibre_dir, down / max(dl, 1e-20), smoothstep(0.15, 0.4, dl));
+        mass_fibre /= max(length(mass_fibre), 1e-20);
+        // no strands where the hair-flow coordinates stretch (the crown): there a unit
+        // of them covers several of surface
+        float ls = length(t_s), lt = length(t_t);
+        float stretched = max(max(ls, lt), 1.0 / max(min(ls, lt), 1e-20));
+        strands = (1.0 - smoothstep(1.5, 3.0, stretched)) * scalp_strands(hc / u_unit, footprint / u_unit);
+    }
     // wrinkles: the crease tile's grooves run along its x, laid along t (across the hair
     // flow: around a limb, across the forehead and neck). Fine ones where the relief
     // level rises above ordinary skin's (aged skin, dorsal hands, knuckles, elbows,
@@ -276,6 +349,8 @@ void main() {
     vec3 spec_sum = vec3(0.0);
     vec3 hair_light = vec3(0.0);
     vec3 hair_spec = vec3(0.0);
+    vec3 mass_light = vec3(0.0);   // scalp hair: fibres that also shade as a surface
+    vec3 mass_spec = vec3(0.0);
     for (int i = 0; i < NUM_LIGHTS; ++i) {
         vec3 to_light = u_light_pos[i] - world;
         vec3 l = to_light / max(length(to_light), 1e-20);
@@ -305,18 +380,26 @@ void main() {
             spec_sum += vis * shade * u_light_diffuse[i] * (PI * D * F * G / (4.0 * nv) * (1.0 + 0.4 * oil + gloss));
         }
 #if HAIR
-        // hair fibres: diffuse by the sine of the light to the fibre, a shifted
-        // specular cone (Kajiya-Kay)
-        float tl = dot(fibre, l);
-        vec3 hh = (l + v) / max(length(l + v), 1e-20);
-        float th = dot(fibre, hh);
-        hair_light += ambient + vis * u_light_diffuse[i] * (0.3 + 0.7 * sqrt(max(1.0 - tl * tl, 0.0)));
-        float s2 = max(1.0 - th * th, 0.0), s4 = s2 * s2, s16 = s4 * s4 * s4 * s4;
-        hair_spec += vis * u_light_diffuse[i] * 0.12 * (s16 * s4);   // sine^40
+        vec2 kk = kajiya_kay(fibre, l, v);
+        hair_light += ambient + vis * u_light_diffuse[i] * kk.x;
+        hair_spec += vis * u_light_diffuse[i] * kk.y;
+        if (scalp > 0.0) {
+            // a mass of hair is lit on the side facing the light; its far side is in
+            // the shadow of the hairs in front (wrapped a little: light passes between)
+            float facing = clamp((nl_geo + 0.25) / 1.25, 0.0, 1.0);
+            kk = kajiya_kay(mass_fibre, l, v);
+            mass_light += ambient + vis * facing * u_light_diffuse[i] * kk.x;
+            mass_spec += vis * facing * u_light_diffuse[i] * kk.y;
+        }
 #endif
     }
     vec3 colour = albedo * light_sum + spec_sum;
 #if HAIR
+    if (scalp > 0.0) {   // dark gaps between strands, glints along the bright ones
+        vec3 mass = albedo * max(1.0 + 1.6 * strands, 0.1) * mass_light
+                    + 0.4 * mass_spec * clamp(1.0 + 3.0 * strands, 0.0, 3.0);
+        colour = mix(colour, mass, scalp);
+    }
     vec3 hair_albedo = to_linear(u_hair_rgb);
     vec3 vellus_albedo = mix(albedo, hair_albedo, 0.3) * 1.15;   // fine, partly translucent
     float cover = clamp(terminal + vellus, 0.0, 1.0);

@@ -42,9 +42,9 @@ def test_torch_skin_reflectance_matches_gl(renderer, rng, trial):
     assert err.max() <= 2 / 255, f"max |torch - GL| = {err.max() * 255:.2f}/255"
 
 
-def _skin_plane(rng, half=0.5, n=24, weight=None, params=(170, 200, 255, 150), tex_size=64):
+def _skin_plane(rng, half=0.5, n=24, weight=None, params=(170, 200, 255, 150), tex_size=64, scalp=None):
     """A flat square (normal +Z, metres) with a uniform skin texture, skin parameters and
-    hair coordinates along +x."""
+    hair coordinates along +x (scalp: optional scalp hair coverage, straight hair)."""
     xs = np.linspace(-half, half, n)
     xx, yy = np.meshgrid(xs, xs)
     v = np.stack([xx.ravel(), yy.ravel(), np.zeros(n * n)], 1)
@@ -54,7 +54,7 @@ def _skin_plane(rng, half=0.5, n=24, weight=None, params=(170, 200, 255, 150), t
     hair = v[f][..., :2].astype(np.float32)            # s = x, t = y
     prm = np.zeros((16, 16, 4), np.uint8)
     prm[:] = params
-    skin = SkinSurface(prm, weight, hair, (40, 30, 25))
+    skin = SkinSurface(prm, weight, hair, (40, 30, 25), scalp_hair=scalp, hair_curl=0.0)
     return gs.Mesh(v, f, uvs=uv, texture=tex, name="skin-plane", skin=skin)
 
 
@@ -122,6 +122,42 @@ def test_detail_and_hair_stay_off_non_skin(renderer, rng):
     assert nonskin.sum() > 1000 and skin.sum() > 1000
     assert np.abs(imgs[0] - imgs[1])[nonskin].max() == 0
     assert np.abs(imgs[0] - imgs[1])[skin].mean() > 2 / 255
+
+
+def test_scalp_hair_shows_strands_up_close_and_none_far_away(renderer, rng):
+    """Scalp hair (non-skin, SkinSurface.scalp_hair) gets strands at the pixel's scale:
+    up close its half of the frame has several times the luminance gradient of the
+    other half (non-skin without hair, the same texture), and they run along the hair
+    flow (+x: more gradient across, along y). Far away they are filtered out: no more
+    pixel noise than the hairless half."""
+    size = 1024
+    scalp = np.zeros((size, size), np.uint8)
+    scalp[:, :size // 2] = 255                         # u < 0.5 (x < 0): scalp hair
+    no_weight = np.zeros((size, size), np.uint8)
+    mesh = _skin_plane(rng, weight=no_weight, tex_size=size, scalp=scalp)
+    cam = _look_down(renderer, 0.015, x=0.0)         # 0.06 mm per pixel
+    lights = [PointLight(np.asarray(cam.eye) + [0.01, 0.015, 0], ambient=0.25, diffuse=0.9)]
+    out = renderer.render(mesh, cam, passes=("rgb", "gbuffer"), lights=lights,
+                          material=Material(model="skin"))
+    lum = out["rgb"].mean(-1)
+    u = out["uv"][..., 0]
+    hair = (u < 0.5 - 4 / size) & (out["face_id"] >= 0)
+    cloth = (u > 0.5 + 4 / size) & (out["face_id"] >= 0)
+    gx, gy = np.abs(np.diff(lum, axis=1))[:-1, :], np.abs(np.diff(lum, axis=0))[:, :-1]
+    h, c = hair[:-1, :-1], cloth[:-1, :-1]
+    assert h.sum() > 1000 and c.sum() > 1000
+    assert (gx + gy)[h].mean() > 5 * (gx + gy)[c].mean() and (gx + gy)[h].mean() > 0.005
+    assert gy[h].mean() > 2 * gx[h].mean()             # strands lie along x
+    for w in (3.0, 8.0):
+        cam = _look_down(renderer, w, x=rng.uniform(-0.3, 0.3))
+        lights = [PointLight(np.asarray(cam.eye) + [0.3 * w, 0.2 * w, 0], ambient=0.3, diffuse=0.8)]
+        imgs = []
+        for cover in (scalp, None):
+            mesh = _skin_plane(rng, half=10.0, weight=no_weight, tex_size=size, scalp=cover)
+            imgs.append(renderer.render(mesh, cam, passes=("rgb",), lights=lights,
+                                        material=Material(model="skin"))["rgb"] * 255)
+        assert np.isfinite(imgs[0]).all()
+        assert _lap_energy(imgs[0]) < _lap_energy(imgs[1]) + 1.0, (w, _lap_energy(imgs[0]))
 
 
 def test_a_flash_at_the_lens_gives_no_nan(renderer, rng):

@@ -174,9 +174,15 @@ def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size) -> d
             "texture": paint.texture, "nonskin": paint.nonskin, "features": paint.features,
             "anatomy": st["labels"], "anatomy_map": _anatomy_map(texture_size),
             "nevi": np.asarray(paint.nevi, np.int64).reshape(-1, 4),
-            "skin_params": paint.params, "skin_weight": paint.weight,
+            "skin_params": paint.params, "skin_weight": paint.weight, "scalp_hair": paint.scalp_hair,
             "hair_coords": hair_coords,
             "meta": meta}
+
+
+def hair_curl(look: dict) -> float:
+    """The course of scalp hair strands for the shader (SkinSurface.hair_curl): coily
+    hair 1, straight hair slightly wavy."""
+    return 1.0 if look.get("hair_texture") == "coily" else 0.2
 
 
 def body_hair_rgb(scalp_rgb) -> tuple:
@@ -320,6 +326,7 @@ def _shape_problem(a: dict, size: int):
         "features": a["features"].shape[:2] == (size, size),
         "anatomy": a["anatomy"].shape == (len(v),),
         "nevi": a["nevi"].ndim == 2 and a["nevi"].shape[1] == 4,
+        "scalp_hair": "scalp_hair" not in a or a["scalp_hair"].shape == (size, size),
     }
     bad = [k for k, ok in checks.items() if not ok]
     return f"arrays of the wrong shape or content: {', '.join(bad)}" if bad else None
@@ -330,7 +337,8 @@ def _from_arrays(a: dict) -> Body:
     skin_surface = None
     if "skin_params" in a:
         skin_surface = SkinSurface(a["skin_params"], a["skin_weight"], a["hair_coords"],
-                                   body_hair_rgb(meta["look"]["hair_rgb"]))
+                                   body_hair_rgb(meta["look"]["hair_rgb"]),
+                                   scalp_hair=a.get("scalp_hair"), hair_curl=hair_curl(meta["look"]))
     mesh = Mesh(a["vertices"], a["faces"], uvs=a["uvs"], face_uvs=a["face_uvs"],
                 texture=a["texture"], textures={"nonskin": a["nonskin"], "features": a["features"]},
                 vertex_labels=a["anatomy"], name=f"anny-body-{meta['seed']}", skin=skin_surface)

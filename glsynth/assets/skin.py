@@ -351,6 +351,7 @@ class Paint:
     features: np.ndarray     # HxW uint8, 1 = lips / areolae / nails / nevi (skin, not "healthy")
     params: np.ndarray       # (H/4)x(W/4)x4 uint8 skin parameters (glsynth.mesh.SkinSurface)
     weight: np.ndarray       # HxW uint8 skin detail weight (255 healthy skin, 0 non-skin)
+    scalp_hair: np.ndarray   # HxW uint8 coverage of the scalp hair (as seen over the skin)
 
 
 class _Texels:
@@ -426,18 +427,21 @@ class _Painter:
         n = len(tx.idx)
         self.rgb_over = np.zeros((n, 3), np.float32)   # non-skin paint, premultiplied
         self.alpha = np.zeros(n, np.float32)           # its coverage
+        self.scalp = np.zeros(n, np.float32)           # the visible share of it that is scalp hair
         self.region = np.zeros(n, np.float32)          # non-skin regions (> 0.5)
         # texel footprint in metres (for pore frequency and nevus sizes)
         cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         area3 = np.linalg.norm(cross, axis=1).sum() / 2
         self.texel_m = float(np.sqrt(area3 / tx.on_surface.sum()))
 
-    def over(self, rgb, alpha, region=None, sel=None):
+    def over(self, rgb, alpha, region=None, sel=None, scalp=False):
         """Composite non-skin paint (sRGB 0..1 per texel or one colour) with coverage
         ``alpha``; ``region`` (default alpha) is what counts as non-skin (> 0.5).
-        ``sel``: indices of the texels the arrays refer to (default: all)."""
+        ``sel``: indices of the texels the arrays refer to (default: all); ``scalp``:
+        the paint is scalp hair (the shader gives it strands)."""
         sel = slice(None) if sel is None else sel
         a = np.clip(alpha, 0, 1).astype(np.float32)
+        self.scalp[sel] = self.scalp[sel] * (1 - a) + (a if scalp else 0)
         self.region[sel] = np.maximum(self.region[sel], a if region is None else region)
         rgb = np.broadcast_to(np.asarray(rgb, np.float32), (len(a), 3))
         self.rgb_over[sel] = self.rgb_over[sel] * (1 - a[:, None]) + rgb * a[:, None]
@@ -460,11 +464,12 @@ class _Painter:
         nonskin = (self.region > 0.5).astype(np.uint8)
         tex = np.clip(np.rint(rgb * 255), 0, 255).astype(np.uint8)
         params, weight = self.detail_params(nevi_mask)
-        texture, nonskin_img, feat_img, params_img, weight_img = _fill_uncovered(
-            tx, tex, nonskin, (features > 0.5).astype(np.uint8), params, weight)
+        scalp = np.clip(np.rint(self.scalp * 255), 0, 255).astype(np.uint8)
+        texture, nonskin_img, feat_img, params_img, weight_img, scalp_img = _fill_uncovered(
+            tx, tex, nonskin, (features > 0.5).astype(np.uint8), params, weight, scalp)
         size = tx.size // 4
         params_img = cv2.resize(params_img, (size, size), interpolation=cv2.INTER_AREA)
-        return Paint(texture, nonskin_img, boxes, feat_img, params_img, weight_img)
+        return Paint(texture, nonskin_img, boxes, feat_img, params_img, weight_img, scalp_img)
 
     # ---- micro-detail parameters --------------------------------------------------------
     def _exposed(self):
@@ -786,7 +791,8 @@ class _Painter:
             strands = nz.fbm(p, 0.3 / max(self.texel_m, 4e-4), 2) * 1.3
         where = _smoothstep(0.2, 0.5, tx.ch["head"][sel]) * (1 - _smoothstep(0.2, 0.6, ears))
         density = _smoothstep(-0.8, 1.6, inside + 0.9 * strands) * where
-        self.over(self._hair_colour(p, strands), density, region=(inside > 0) * where, sel=sel)
+        self.over(self._hair_colour(p, strands), density, region=(inside > 0) * where, sel=sel,
+                  scalp=True)
 
     def eyebrows(self):
         tx, j, s, nz = self.tx, self.j, self.scale, self.noise

@@ -90,16 +90,25 @@ def _half_float_texels(texture):
     return cv2.LUT(np.ascontiguousarray(texture), _U8_TO_HALF.reshape(256, 1))
 
 
-def _rgba(mesh) -> np.ndarray:
-    """The colour texture with the skin detail weight as alpha (255 without one)."""
+def _texels(mesh) -> np.ndarray:
+    """The colour texture as half floats, with the skin detail weight as alpha (1 without
+    one), or where scalp hair covers more than the weight, minus its coverage
+    (shaders/skin.frag)."""
     tex = mesh.texture
-    weight = None if mesh.skin is None else mesh.skin.weight
-    if weight is not None and np.shape(weight) != tex.shape[:2]:
-        raise ValueError(f"{mesh.name}: skin detail weight {np.shape(weight)} does not match the "
-                         f"texture {tex.shape[:2]}")
+    skin = mesh.skin
+    weight = None if skin is None else skin.weight
+    scalp = None if skin is None else skin.scalp_hair
+    for name, arr in (("skin detail weight", weight), ("scalp hair coverage", scalp)):
+        if arr is not None and np.shape(arr) != tex.shape[:2]:
+            raise ValueError(f"{mesh.name}: {name} {np.shape(arr)} does not match the "
+                             f"texture {tex.shape[:2]}")
     out = np.empty(tex.shape[:2] + (4,), np.uint8)
     out[..., :3] = tex
     out[..., 3] = 255 if weight is None else weight
+    out = _half_float_texels(out)
+    if scalp is not None:
+        hair = scalp > out[..., 3].astype(np.float32) * 255
+        out[..., 3][hair] = -_U8_TO_HALF[scalp[hair]]
     return out
 
 
@@ -189,8 +198,9 @@ class _MeshOnGPU:
         _ = mesh.bounds, mesh.closed_orientation, mesh._face_longest_edge  # for clip planes
         # Half floats: llvmpipe filters 8-bit textures with 8-bit weights (up to ~2/255
         # off the torch path); float textures are filtered in float. Alpha carries the
-        # skin shading's detail weight (SkinSurface.weight; 1 without one).
-        texels = None if mesh.texture is None else _half_float_texels(_rgba(mesh))
+        # skin shading's detail weight (SkinSurface.weight; 1 without one) or, negated,
+        # the scalp hair's coverage (SkinSurface.scalp_hair).
+        texels = None if mesh.texture is None else _texels(mesh)
         skin = mesh.skin
         hair = None
         if skin is not None and skin.hair_coords is not None:  # every corner carries its face's
@@ -699,6 +709,7 @@ class Renderer:
                           u_meso_size=float(t.meso.shape[0]))
             if mesh.skin is not None:
                 values["u_hair_rgb"] = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
+                values["u_hair_curl"] = float(mesh.skin.hair_curl)
         _set_uniforms(prog, values)
 
     def _shadow_map(self, gpu, mesh, camera, light, prog):
