@@ -236,14 +236,15 @@ def test_nonskin_mask_covers_hair_and_eyes(tone_bodies, default_body):
         # back of the scalp: above the eyes, well behind them
         crown = (lab == 1) & (v[:, 1] > eye[1] + 0.03) & (v[:, 2] < eye[2] - 0.1)
         # the scalp hair is painted as non-skin and shaded as hair (SkinSurface.scalp_hair):
-        # full coverage on the crown, none on skin, eyes or clothing
+        # full coverage on the crown, hardly any on skin, none off the head
         scalp = m.skin.scalp_hair[row, col]
         if body.meta["look"]["hair"] != "none":
             assert ns[crown].mean() > 0.95
             assert np.mean(scalp[crown] > 200) > 0.95
         else:
             assert ns[crown].mean() < 0.05
-        assert np.all(scalp[ns == 0] < 128) and np.all(scalp[lab != 1] == 0)
+        # (single hair tips reach a texel past the labelled hairline)
+        assert np.mean(scalp[ns == 0] >= 128) < 1e-3 and np.all(scalp[lab != 1] == 0)
         # the cheeks (outer surface: facing forward, not the mouth's inside) are skin
         cheeks = (lab == 1) & (v[:, 2] > eye[2] - 0.02) & (v[:, 1] < eye[1] - 0.035) \
             & (v[:, 1] > eye[1] - 0.06) & (np.abs(v[:, 0] - eye[0]) > 0.03) \
