@@ -140,9 +140,7 @@ float scalp_strands(vec2 st, float px) {
     }
     return v;
 }
-#endif
 
-#if HAIR
 // A hair fibre along unit vector fibre lit from l, seen from v (Kajiya-Kay): diffuse by
 // the sine of the light to the fibre, and a specular cone (sine^40 of the half vector)
 vec2 kajiya_kay(vec3 fibre, vec3 l, vec3 v) {

@@ -143,15 +143,14 @@ _TILES = [(200, 200, 195), (150, 150, 150), (215, 205, 185), (120, 110, 100), (2
 _FURN = [(90, 60, 40), (60, 60, 65), (140, 110, 80), (200, 200, 195), (70, 90, 110), (110, 40, 40)]
 
 
-# Clinical backdrops: what surrounds skin in clinical photographs (sRGB)
+# Clinical backdrops: what surrounds skin in clinical photographs (sRGB); "fabric"
+# (clothing, curtains, towels) takes any dye, from fabric_colour
 BACKDROPS = {
     "drape": [(40, 110, 160), (30, 120, 130), (60, 140, 120), (45, 85, 150), (90, 150, 170)],
     "sheet": [(232, 232, 228), (215, 222, 230), (200, 212, 220), (236, 230, 220)],
     "paper": [(238, 238, 233), (228, 230, 226)],
     "wall": [(200, 200, 195), (215, 210, 200), (170, 180, 185), (120, 130, 140), (60, 62, 66),
              (225, 192, 160), (196, 120, 80)],
-    # clothing, curtains, towels: any dye (fabric_colour), the table only for reference
-    "fabric": [(50, 60, 90), (30, 30, 35), (120, 30, 40), (200, 200, 200), (90, 110, 70), (150, 120, 90)],
     # black velvet or a dark room: medical photography's standard backdrop, and what a
     # room becomes behind a flash-lit patient (4 of the 9 dev photographs with non-skin)
     "dark": [(14, 14, 16), (22, 20, 20), (10, 12, 18), (26, 24, 22)],

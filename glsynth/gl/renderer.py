@@ -106,8 +106,8 @@ def _texels(mesh) -> np.ndarray:
     out[..., :3] = tex
     out[..., 3] = 255 if weight is None else weight
     out = _half_float_texels(out)
-    if scalp is not None:
-        hair = scalp > out[..., 3].astype(np.float32) * 255
+    if scalp is not None and weight is not None:   # (nothing covers more than 255)
+        hair = scalp > weight
         out[..., 3][hair] = -_U8_TO_HALF[scalp[hair]]
     return out
 
