@@ -346,7 +346,7 @@ def test_closeups_frame_a_lesion_at_the_requested_fraction(renderer, rng, radius
     from glsynth.pipeline import views as V
     frac = rng.uniform(0.05, 0.2)
     v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0",
-                     "views.closeup_min_width=0.005").views
+                     "views.closeup_min_width=[0.005, 0.005]").views
     r = radius_mm / 1000
     centre = np.r_[rng.uniform(-0.1, 0.1, 2), 0.0]
     a, d = rng.uniform(0, 2 * np.pi, 4000), r * np.sqrt(rng.uniform(0, 1, 4000))
@@ -367,7 +367,54 @@ def test_closeups_frame_a_lesion_at_the_requested_fraction(renderer, rng, radius
     elif radius_mm == 1.5:
         assert w == v.closeup_w[0] and fov < v.fov_deg and abs(got - frac) < 0.1 * frac
     else:
-        assert w == v.closeup_w[0] and abs(side - v.closeup_min_width) < 1e-9 and got < 0.5 * frac
+        assert w == v.closeup_w[0] and abs(side - v.closeup_min_width[0]) < 1e-9 and got < 0.5 * frac
+
+
+def test_closeups_of_small_lesions_range_from_macro_to_context(rng):
+    """A lesion too small to fill its share of the narrowest frame is framed as wide as a
+    log-uniform draw in closeup_min_width: macro shots and context shots alike, never
+    outside the range; a lesion large enough for its share is framed by that share."""
+    from glsynth.pipeline import views as V
+    lo, hi = sorted(rng.uniform(0.01, 0.15, 2))
+    v = small_config("views.closeup_fraction=[0.1, 0.1]", "views.closeup_tilt=0",
+                     f"views.closeup_min_width=[{lo}, {hi}]", "views.closeup_w=[0.001, 100]").views
+    flat = lambda r: V.LesionSite(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.pi * r * r)  # noqa: E731
+    widths = []
+    for _ in range(400):
+        _, _, _, w, _, fov = V._closeup_camera([flat(1e-4)], rng, v)
+        widths.append(2 * w * np.tan(np.radians(fov) / 2))
+    u = (np.log(widths) - np.log(lo)) / (np.log(hi) - np.log(lo))   # uniform in [0, 1]
+    assert u.min() > -1e-9 and u.max() < 1 + 1e-9
+    assert np.allclose(np.quantile(u, [0.25, 0.5, 0.75]), [0.25, 0.5, 0.75], atol=0.08)
+    big = 3 * hi                                   # the frame a disc needs to fill 0.1 of it
+    _, _, _, w, _, fov = V._closeup_camera([flat(big * np.sqrt(0.1 / np.pi))], rng, v)
+    assert abs(2 * w * np.tan(np.radians(fov) / 2) - big) < 1e-9 * big
+
+
+def test_a_lesion_outline_is_a_discs_own_area_and_a_groups_whole_extent(rng):
+    """outline_area on a tilted plane: a disc's points give its area; papules at the
+    corners of a square give the square grown by their radius (the group's extent,
+    far more than the papules' own area), whatever the plane's orientation."""
+    from glsynth.pipeline import views as V
+    n = rng.normal(size=3)
+    n /= np.linalg.norm(n)
+    u = np.cross(n, rng.normal(size=3))
+    u /= np.linalg.norm(u)
+    e = np.stack([u, np.cross(n, u)])                       # the plane's in-plane axes
+    origin = rng.uniform(-1, 1, 3)
+    on_plane = lambda xy: origin + xy @ e                   # noqa: E731
+    r, side = rng.uniform(0.002, 0.005), rng.uniform(0.04, 0.1)
+    a, d = rng.uniform(0, 2 * np.pi, 20000), r * np.sqrt(rng.uniform(0, 1, 20000))
+    disc = np.c_[d * np.cos(a), d * np.sin(a)]
+    normals = np.tile(n, (len(disc), 1))
+    assert abs(V.outline_area(on_plane(disc), normals) - np.pi * r * r) < 0.02 * np.pi * r * r
+    corners = np.array([[0, 0], [side, 0], [0, side], [side, side]])
+    group = np.concatenate([disc + c for c in corners])
+    want = side ** 2 + 4 * side * r + np.pi * r * r          # square grown by r
+    got = V.outline_area(on_plane(group), np.tile(n, (len(group), 1)))
+    assert abs(got - want) < 0.02 * want and got > 3 * 4 * np.pi * r * r
+    site = V.LesionSite(on_plane(group), np.tile(n, (len(group), 1)), 4 * np.pi * r * r, got)
+    assert site.extent == got and V.LesionSite(site.points, site.normals, 1.0).extent == 1.0
 
 
 def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):
@@ -377,7 +424,8 @@ def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):
     may stray can leave one edge clear of a disc)."""
     from glsynth.pipeline import views as V
     frac = rng.uniform(2.2, 4.0)
-    v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0").views
+    v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0",
+                     "views.closeup_min_width=[0.015, 0.015]").views
     r = rng.uniform(0.04, 0.08)
     a, d = rng.uniform(0, 2 * np.pi, 4000), r * np.sqrt(rng.uniform(0, 1, 4000))
     pts = np.c_[d * np.cos(a), d * np.sin(a), np.zeros_like(a)]
