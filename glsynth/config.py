@@ -294,15 +294,14 @@ class ViewsConfig:
                         "wild (the paper's: a surface point or lesion at distance w)",
                         rule=Rule(_framing_weights, f"a mapping of some of {', '.join(FRAMINGS)} "
                                   "to weights >= 0, not all 0"))
-    closeup_fraction: list = key([0.05, 1.5], "close-ups: lesion outline area (a grouped "
-                                 "condition's whole extent) / frame area (above 1: a large lesion "
-                                 "or eruption seen in part, running off the frame)",
+    closeup_fraction: list = key([0.08, 2.0], "close-ups: lesion area / frame area (above 1: a "
+                                 "large lesion or eruption seen in part, running off the frame)",
                                  pair=between(1e-4, 10))
     closeup_tilt: float = key(25.0, "close-ups: the camera within this angle of the normal (degrees)",
                               within=Interval(0, 90, hi_open=True))
     closeup_w: list = key([0.04, 0.6], "close-ups: camera distance limits (m)",
                           pair=between(1e-4, 1e4))
-    closeup_min_width: list = key([0.015, 0.06], "close-ups: the narrowest frame on the skin (m), "
+    closeup_min_width: list = key([0.015, 0.03], "close-ups: the narrowest frame on the skin (m), "
                                   "log-uniform per view: from a clinical camera at its closest "
                                   "(about 1:1 macro, 1.5 cm) to a small lesion shown in context; a "
                                   "lesion too small to fill its share of the frame fills less",

@@ -391,32 +391,6 @@ def test_closeups_of_small_lesions_range_from_macro_to_context(rng):
     assert abs(2 * w * np.tan(np.radians(fov) / 2) - big) < 1e-9 * big
 
 
-def test_a_lesion_outline_is_a_discs_own_area_and_a_groups_whole_extent(rng):
-    """outline_area on a tilted plane: a disc's points give its area; papules at the
-    corners of a square give the square grown by their radius (the group's extent,
-    far more than the papules' own area), whatever the plane's orientation."""
-    from glsynth.pipeline import views as V
-    n = rng.normal(size=3)
-    n /= np.linalg.norm(n)
-    u = np.cross(n, rng.normal(size=3))
-    u /= np.linalg.norm(u)
-    e = np.stack([u, np.cross(n, u)])                       # the plane's in-plane axes
-    origin = rng.uniform(-1, 1, 3)
-    on_plane = lambda xy: origin + xy @ e                   # noqa: E731
-    r, side = rng.uniform(0.002, 0.005), rng.uniform(0.04, 0.1)
-    a, d = rng.uniform(0, 2 * np.pi, 20000), r * np.sqrt(rng.uniform(0, 1, 20000))
-    disc = np.c_[d * np.cos(a), d * np.sin(a)]
-    normals = np.tile(n, (len(disc), 1))
-    assert abs(V.outline_area(on_plane(disc), normals) - np.pi * r * r) < 0.02 * np.pi * r * r
-    corners = np.array([[0, 0], [side, 0], [0, side], [side, side]])
-    group = np.concatenate([disc + c for c in corners])
-    want = side ** 2 + 4 * side * r + np.pi * r * r          # square grown by r
-    got = V.outline_area(on_plane(group), np.tile(n, (len(group), 1)))
-    assert abs(got - want) < 0.02 * want and got > 3 * 4 * np.pi * r * r
-    site = V.LesionSite(on_plane(group), np.tile(n, (len(group), 1)), 4 * np.pi * r * r, got)
-    assert site.extent == got and V.LesionSite(site.points, site.normals, 1.0).extent == 1.0
-
-
 def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):
     """closeup_fraction above 1 asks for a frame smaller than the lesion: a large disc
     seen square-on then runs off every edge of the frame and covers nearly all of it

@@ -306,7 +306,7 @@ class Generate2DViews(_Stage):
         return texture, instances, placements
 
     def _lesion_points(self, renderer, mesh, instances, placements):
-        """A views.LesionSite per placed lesion: its texels' points, normals, area and outline."""
+        """A views.LesionSite per placed lesion: its texels' points, normals and area."""
         if not placements:
             return []
         h, w = instances.shape
@@ -318,8 +318,7 @@ class Generate2DViews(_Stage):
         for p in placements:  # only each lesion's texel box is rasterised (~10 ms, not 240)
             tx = TexelGeometry.of(renderer, mesh, only=np.isin(instances, p.ids), box=p.texel_box)
             if len(tx.rows):
-                sites.append(V.LesionSite(tx.points, tx.normals, float(texel_area[tx.faces].sum()),
-                                          V.outline_area(tx.points, tx.normals)))
+                sites.append(V.LesionSite(tx.points, tx.normals, float(texel_area[tx.faces].sum())))
         return sites
 
     def _one_view(self, renderer, body_id, body, mesh_b, instances, nevi_map, placements,

@@ -64,31 +64,10 @@ class ViewRejected(GlsynthError):
 @dataclass
 class LesionSite:
     """Where a lesion lies on the body: its texels' surface points and unit normals,
-    its surface area and the area of its outline (both scene units squared; see
-    ``outline_area``; 0: the area)."""
+    and its surface area (scene units squared)."""
     points: np.ndarray
     normals: np.ndarray
     area: float
-    outline: float = 0.0
-
-    @property
-    def extent(self) -> float:
-        """The area a close-up frames: the outline's, never less than the lesion's own."""
-        return max(self.area, self.outline)
-
-
-def outline_area(points, normals) -> float:
-    """The area of the convex outline of a lesion's surface points seen along their mean
-    normal: a solitary lesion's own area, a grouped or widespread condition's whole
-    extent (a clinician frames the eruption, not one papule's worth of skin)."""
-    n = normals.mean(0)
-    if len(points) < 3 or np.linalg.norm(n) < 1e-9:
-        return 0.0
-    n /= np.linalg.norm(n)
-    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    flat = np.stack([(points - points.mean(0)) @ u, (points - points.mean(0)) @ np.cross(n, u)], 1)
-    return float(cv2.contourArea(cv2.convexHull(flat.astype(np.float32))))
 
 
 def choose_framing(rng, v, has_lesions: bool) -> str:
@@ -141,8 +120,7 @@ def _wild_camera(mesh, lesion_sites, rng, v):
 
 
 def _closeup_camera(lesion_sites, rng, v):
-    """A clinical close-up: a lesion's outline (``LesionSite.extent``: a grouped
-    condition's whole extent) filling a fraction of the frame (log-uniform in
+    """A clinical close-up: a lesion filling a fraction of the frame (log-uniform in
     views.closeup_fraction, as area), seen within views.closeup_tilt of its normal,
     its centre off the image centre by up to a fifth of the frame. The frame is never
     narrower than views.closeup_min_width (a small lesion fills less of it, as in a
@@ -156,7 +134,7 @@ def _closeup_camera(lesion_sites, rng, v):
     k = int(rng.integers(len(lesion_sites)))
     site = lesion_sites[k]
     frac = log_uniform(rng, v.closeup_fraction)
-    width = max(np.sqrt(site.extent / frac), log_uniform(rng, v.closeup_min_width))  # on the surface
+    width = max(np.sqrt(site.area / frac), log_uniform(rng, v.closeup_min_width))  # on the surface
     w_wanted = width / (2 * np.tan(np.radians(v.fov_deg) / 2))
     w = float(np.clip(w_wanted, *v.closeup_w))
     fov = v.fov_deg
