@@ -123,14 +123,11 @@ def _closeup_camera(lesion_sites, rng, v):
     """A clinical close-up: a lesion filling a fraction of the frame (log-uniform in
     views.closeup_fraction, as area), seen within views.closeup_tilt of its normal,
     its centre off the image centre by up to a fifth of the frame. The frame is never
-    narrower than views.closeup_min_width (a small lesion fills less of it, as in a
-    clinician's macro photograph); a frame narrower than views.fov_deg covers from the
-    nearest distance (views.closeup_w) is had by narrowing the field of view, as a
-    phone's telephoto lens or a crop does. The narrowest frame is drawn per view,
-    log-uniform in views.closeup_min_width: from a 1:1 macro shot of the lesion alone to
-    the context a clinician keeps around a small lesion (a phone's main camera focuses
-    no closer than about 10 cm, where it frames several centimetres). Returns (point, normal, direction,
-    w, centre, fov_deg)."""
+    narrower than a log-uniform draw in views.closeup_min_width, from a 1:1 macro shot
+    to a small lesion shown with skin round it (which then fills less of the frame); a
+    frame narrower than views.fov_deg covers from the nearest distance
+    (views.closeup_w) is had by narrowing the field of view, as a phone's telephoto
+    lens or a crop does. Returns (point, normal, direction, w, centre, fov_deg)."""
     k = int(rng.integers(len(lesion_sites)))
     site = lesion_sites[k]
     frac = log_uniform(rng, v.closeup_fraction)
