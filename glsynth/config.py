@@ -195,6 +195,10 @@ class PasteConfig:
     enlarge: bool = key(True, "false: a lesion never gets more view pixels than source pixels")
     overlap: str = key("lesion", "what a new dilated lesion must not touch: earlier lesions "
                        "(lesion) or their dilated regions (dilated, the original)", choices=OVERLAPS)
+    body_sites: bool = key(True, "procedural conditions go where they are usually seen (a region "
+                           "drawn by the preset's sites, assets/morphology.SITES, for the first "
+                           "half of the attempts); false: anywhere on the skin by area, the "
+                           "paper's")
 
 
 _WEIGHT = Interval(0, 1e12, hi_open=True)

@@ -238,3 +238,51 @@ def test_body_texels_are_kept_for_the_same_body_only(scene, rng):
     b = TexelGeometry.of_body(scene.r, moved)
     assert b is not a and np.allclose(b.points, a.points + (moved.vertices - scene.body.mesh.vertices)[0])
     TexelGeometry.forget()
+
+
+def test_site_shares_name_presets_and_regions_and_sum_to_one():
+    from glsynth.assets.morphology import PRESETS, SITES
+    from glsynth.dataformat import GROUP_NAMES
+    for preset, shares in SITES.items():
+        assert preset in PRESETS
+        assert set(shares) <= set(GROUP_NAMES.values()) - {"background"}
+        assert sum(shares.values()) == pytest.approx(1.0)
+
+
+def _labelled_sheet(rng, n=30):
+    """A wavy sheet whose vertex rows fall in three regions: head, upper torso, lower leg."""
+    from glsynth.mesh import grid_faces
+    u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
+    verts = np.stack([u * 0.6, v * 0.6, 0.05 * np.sin(3 * u + 2 * v ** 2)], -1).reshape(-1, 3)
+    rows = np.repeat(np.arange(n), n)
+    labels = np.where(rows < n // 3, 1, np.where(rows < 2 * n // 3, 2, 7))
+    texture = np.full((256, 256, 3), 180, np.uint8)
+    mesh = gs.Mesh(verts, grid_faces(n), uvs=np.stack([u, v], -1).reshape(-1, 2), texture=texture,
+                   vertex_labels=labels, name="labelled sheet")
+    return SimpleNamespace(mesh=mesh, nonskin=np.zeros((256, 256), np.uint8), meta={})
+
+
+def test_conditions_are_placed_in_their_usual_regions_by_share_then_area(rng):
+    from glsynth.assets.morphology import SITES
+    from glsynth.dataformat import group_labels
+    from glsynth.pipeline.paste import Paster
+    body = _labelled_sheet(rng)
+    mesh = body.mesh
+    group = group_labels(mesh.vertex_labels[mesh.faces[:, 0]])
+    paster = Paster(None, body, None, PasteSettings(view_size=VIEW))
+    area_p = mesh.face_areas / mesh.face_areas.sum()
+    for preset in ("bcc", "ulcer", "pityriasis_rosea", "psoriasis"):
+        p = paster.site_p(preset)
+        shares = {g: SITES[preset].get(name, 0.0) for g, name in ((1, "head"), (2, "torso"), (4, "legs"))}
+        total = sum(shares.values())
+        for g, share in shares.items():
+            sel = group == g
+            assert p[sel].sum() == pytest.approx(share / total, abs=1e-9)
+            if share:   # by area within the region
+                assert np.allclose(p[sel] / p[sel].sum(), area_p[sel] / area_p[sel].sum())
+    # no sites (a real lesion image, a preset placed anywhere) or body_sites off: by area
+    assert paster.site_p(None) is paster.face_p
+    assert paster.site_p("inflammatory_patch") is paster.face_p
+    off = Paster(None, body, None, PasteSettings(view_size=VIEW, body_sites=False))
+    assert off.site_p("bcc") is off.face_p
+    assert np.allclose(off.face_p, area_p)

@@ -84,6 +84,9 @@ def test_every_sample_is_consistent(dataset):
             if "preset" in l["source"]:   # a procedural condition, drawn on this body's skin
                 assert l["source"]["fitzpatrick"] == meta["body"]["fitzpatrick"]
                 assert l["source"]["reference_fitzpatrick"] in range(1, 7)
+            # where on the body it was placed (built-in bodies have part labels)
+            from glsynth.dataformat import GROUP_NAMES
+            assert l["source"]["body_region"] in set(GROUP_NAMES.values()) - {"background"}
         assert (meta["fractions"]["skin"]) >= 0.1
         for key in ("eye", "target", "up", "fov_deg", "w", "point", "normal", "intrinsics"):
             assert key in meta["camera"]

@@ -973,7 +973,7 @@ def _inflammatory_patch(b, rng, R):
     return {"border": border, "surface": str(look), "patches": n}
 
 
-# preset -> (builder, size range in mm (the condition's extent), where it usually is)
+# preset -> (builder, size range in mm (the condition's extent))
 PRESETS = {
     "nevus": (_nevus, (2.5, 9.0)),
     "melanoma": (_melanoma, (6.0, 35.0)),
@@ -997,6 +997,37 @@ PRESETS = {
     "pigmented_patch": (_pigmented_patch, (15.0, 150.0)),
     "lichen_planus": (_lichen_planus, (15.0, 80.0)),
     "inflammatory_patch": (_inflammatory_patch, (30.0, 200.0)),
+}
+
+
+# Where each condition is usually seen: the share of its lesions on each body region
+# (dataformat.GROUP_NAMES), after textbook predilection sites: basal cell carcinoma and
+# lentigo maligna on sun-damaged faces, acne on the face and upper trunk, pityriasis rosea
+# on the trunk, venous ulcers and purpura on the lower legs, psoriasis on elbows, knees,
+# scalp line and lower back. Placement (``paste.body_sites``) draws a region by these
+# shares, then a place in it by skin area; a preset not listed goes anywhere by area.
+SITES = {
+    "nevus": {"head": 0.1, "torso": 0.45, "hips": 0.05, "legs": 0.15, "arms": 0.2, "hands": 0.05},
+    "melanoma": {"head": 0.15, "torso": 0.4, "hips": 0.03, "legs": 0.25, "feet": 0.02, "arms": 0.15},
+    "lentigo_maligna": {"head": 0.9, "arms": 0.05, "hands": 0.05},
+    "psoriasis": {"head": 0.1, "torso": 0.25, "legs": 0.3, "feet": 0.05, "arms": 0.25, "hands": 0.05},
+    "eczema": {"head": 0.15, "torso": 0.15, "legs": 0.2, "arms": 0.3, "hands": 0.2},
+    "tinea": {"head": 0.05, "torso": 0.3, "hips": 0.2, "legs": 0.15, "feet": 0.2, "arms": 0.1},
+    "bcc": {"head": 0.8, "torso": 0.15, "arms": 0.05},
+    "scc": {"head": 0.55, "torso": 0.05, "legs": 0.1, "arms": 0.15, "hands": 0.15},
+    "seborrhoeic_keratosis": {"head": 0.2, "torso": 0.6, "legs": 0.1, "arms": 0.1},
+    "acne": {"head": 0.6, "torso": 0.4},
+    "urticaria": {"head": 0.1, "torso": 0.35, "hips": 0.1, "legs": 0.25, "arms": 0.2},
+    "vitiligo": {"head": 0.3, "torso": 0.1, "legs": 0.1, "feet": 0.1, "arms": 0.15, "hands": 0.25},
+    "pityriasis_rosea": {"torso": 0.75, "legs": 0.1, "arms": 0.15},
+    "ulcer": {"hips": 0.05, "legs": 0.75, "feet": 0.2},
+    "lupus": {"head": 0.85, "torso": 0.05, "arms": 0.1},
+    "pyogenic_granuloma": {"head": 0.35, "torso": 0.1, "arms": 0.1, "hands": 0.45},
+    "purpura": {"torso": 0.05, "legs": 0.7, "arms": 0.25},
+    "morphea": {"head": 0.1, "torso": 0.6, "legs": 0.2, "arms": 0.1},
+    "porokeratosis": {"torso": 0.05, "legs": 0.5, "arms": 0.45},
+    "pigmented_patch": {"head": 0.4, "torso": 0.3, "legs": 0.15, "arms": 0.15},
+    "lichen_planus": {"head": 0.1, "torso": 0.1, "legs": 0.35, "arms": 0.45},
 }
 
 

@@ -23,7 +23,8 @@ import numpy as np
 
 from ..camera import Camera
 from ..config import Config, LesionsConfig, PasteConfig
-from ..dataformat import BODY_INSTANCES, PASTED, PLACEMENTS
+from ..assets.morphology import SITES
+from ..dataformat import BODY_INSTANCES, GROUP_NAMES, PASTED, PLACEMENTS, group_labels
 from ..errors import GlsynthError
 from ..sampling import sample_bilinear
 from .seeding import rng_for
@@ -117,12 +118,13 @@ class PasteSettings:
     size: tuple = tuple(_LESIONS.size)
     enlarge: bool = _PASTE.enlarge
     overlap: str = _PASTE.overlap
+    body_sites: bool = _PASTE.body_sites
 
     @classmethod
     def from_config(cls, cfg: Config) -> PasteSettings:
         p = cfg.paste
         return cls(p.view_size, p.fov_deg, tuple(p.w), p.max_depth_change, p.dilation, p.attempts,
-                   tuple(cfg.lesions.size), p.enlarge, p.overlap)
+                   tuple(cfg.lesions.size), p.enlarge, p.overlap, p.body_sites)
 
 
 def compose_lesion(lesion, view_size, extent_px, flip_h, flip_v, angle_deg, max_scale=None):
@@ -188,7 +190,10 @@ class Paster:
         if area.sum() <= 0:
             raise PasteError(f"{mesh.name}: no skin on this body (the non-skin mask covers "
                              "every face), so no lesion can be placed")
-        self.face_p = area / area.sum()
+        self.face_area, self.face_p = area, area / area.sum()
+        labels = mesh.vertex_labels
+        self.face_group = None if labels is None else group_labels(labels[mesh.faces[:, 0]])
+        self._site_p = {}
         self.nonskin = body.nonskin.astype(np.uint16)
         self.T = mesh.texture
         self.result = PastedTextures(self.T, self.T.copy(), np.zeros(self.T.shape[:2], np.uint16),
@@ -199,9 +204,30 @@ class Paster:
         # dilated region (T_d's mask), which a new dilated region must not touch
         self.dilated_ids = np.zeros_like(self.result.instances) if settings.overlap == "dilated" else None
 
+    def site_p(self, preset) -> np.ndarray:
+        """Each face's probability of holding a lesion of ``preset``: a region by the
+        preset's share (morphology.SITES), then by skin area within it; by skin area alone
+        when the preset has no sites, the body no part labels or body_sites is off."""
+        shares = SITES.get(preset) if self.s.body_sites else None
+        if shares is None or self.face_group is None:
+            return self.face_p
+        if preset not in self._site_p:
+            p = np.zeros_like(self.face_p)
+            for group, name in GROUP_NAMES.items():
+                in_group = self.face_group == group
+                total = self.face_area[in_group].sum()
+                if name in shares and total > 0:
+                    p[in_group] = shares[name] * self.face_area[in_group] / total
+            self._site_p[preset] = p / p.sum() if p.sum() > 0 else self.face_p
+        return self._site_p[preset]
+
     def place(self, lesion, rng) -> Placement | None:
-        """Try up to ``attempts`` places; paste and return the placement, or None."""
+        """Try up to ``attempts`` places, the first half where the lesion's condition is
+        usually seen (``site_p``) and the rest anywhere on the skin, so that a condition
+        too large for its usual region still finds a place; paste and return the
+        placement, or None."""
         s, mesh = self.s, self.body.mesh
+        site_p = self.site_p((lesion.meta or {}).get("preset"))
         k = max((max(p.ids) for p in self.result.placements), default=0) + 1
         fields = getattr(lesion, "fields", None)
         unit = mesh.skin.unit if mesh.skin is not None else 1.0
@@ -209,7 +235,7 @@ class Paster:
         reasons = {}
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * s.dilation + 1,) * 2)
         for attempt in range(1, s.attempts + 1):
-            f = rng.choice(len(self.face_p), p=self.face_p)
+            f = rng.choice(len(self.face_p), p=site_p if attempt <= (s.attempts + 1) // 2 else self.face_p)
             bary = rng.dirichlet((1.0, 1.0, 1.0))
             corners = mesh.faces[f]
             point = bary @ mesh.vertices[corners]
@@ -267,6 +293,8 @@ class Paster:
             rows, cols = np.nonzero(mask)
             t_rows, t_cols = np.nonzero(np.isin(self.result.instances, ids))
             meta = _jsonable(lesion.meta)
+            if self.face_group is not None:
+                meta["body_region"] = GROUP_NAMES[int(self.face_group[f])]
             if fields is not None and "fitzpatrick" in meta:
                 # the condition is drawn on this body's skin, not on the swatch it was
                 # previewed on: the record's skin type is the body's
