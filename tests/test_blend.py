@@ -249,7 +249,7 @@ def test_site_shares_name_presets_and_regions_and_sum_to_one():
         assert sum(shares.values()) == pytest.approx(1.0)
 
 
-def _labelled_sheet(rng, n=30):
+def _labelled_sheet(n=30):
     """A wavy sheet whose vertex rows fall in three regions: head, upper torso, lower leg."""
     from glsynth.mesh import grid_faces
     u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
@@ -262,11 +262,11 @@ def _labelled_sheet(rng, n=30):
     return SimpleNamespace(mesh=mesh, nonskin=np.zeros((256, 256), np.uint8), meta={})
 
 
-def test_conditions_are_placed_in_their_usual_regions_by_share_then_area(rng):
+def test_conditions_are_placed_in_their_usual_regions_by_share_then_area():
     from glsynth.assets.morphology import SITES
     from glsynth.dataformat import group_labels
     from glsynth.pipeline.paste import Paster
-    body = _labelled_sheet(rng)
+    body = _labelled_sheet()
     mesh = body.mesh
     group = group_labels(mesh.vertex_labels[mesh.faces[:, 0]])
     paster = Paster(None, body, None, PasteSettings(view_size=VIEW))
