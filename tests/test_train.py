@@ -349,7 +349,7 @@ def test_evaluate_end_to_end_on_a_fitz17k_folder(trained, tmp_path):
     js = {c: [] for c in ("lesion", "skin", "nonskin")}
     for sid, (_, les, ns) in cases.items():
         img = read_rgb(real / sid / "image.jpg")
-        pred = predict(model, img, 64)
+        pred = predict(model, img, 64, tta="d4")    # the command's default
         truth = np.where(les, 0, np.where(ns, 2, 1))
         assert (truth_map(les.shape, {"lesion": real / sid / "lesions.png",
                                       "nonskin": real / sid / "nonskin.png"}) == truth).all()
@@ -362,7 +362,7 @@ def test_evaluate_end_to_end_on_a_fitz17k_folder(trained, tmp_path):
     for c, v in js.items():
         assert summary["classes"][c]["jaccard_mean"] == pytest.approx(np.mean(v), abs=1e-6)
         assert summary["classes"][c]["jaccard_std"] == pytest.approx(np.std(v), abs=1e-6)
-    assert summary["classes"]["nonskin"]["n_empty_truth"] == 2
+    assert summary["classes"]["nonskin"]["n_empty_truth"] == 2 and summary["tta"] == "d4"
     report = open(out / "report.md").read()
     assert "lesion" in report and "± " in report
     grid = read_rgb(out / "grid.png")
@@ -379,6 +379,34 @@ def test_evaluate_end_to_end_on_a_fitz17k_folder(trained, tmp_path):
                  "--out", str(out2), "-q"]) == 0
     s2 = json.load(open(out2 / "summary.json"))
     assert list(s2["classes"]) == ["lesion"] and s2["n_images"] == 2
+
+
+def test_test_time_views_are_turned_back_before_they_are_averaged(rng):
+    """Averaged over all eight flips and quarter turns, the prediction of a turned or
+    mirrored image is the same turn of the image's prediction (an untrained network is
+    far from equivariant, so a view left unturned breaks this); with the mirror only,
+    mirroring commutes; one view is the network itself."""
+    from glsynth.errors import InputError
+    from glsynth.train.evaluate import predict_probs
+    torch.manual_seed(int(rng.integers(1 << 31)))
+    model = SegNet(n_seg=3, n_anatomy=16, width=0.5).eval()
+    img = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    p = predict_probs(model, img, 64, tta="d4")
+    for turned, undo in ((np.rot90(img), lambda q: np.rot90(q, -1, (1, 2))),
+                         (img[:, ::-1], lambda q: q[:, :, ::-1]), (img[::-1], lambda q: q[:, ::-1])):
+        q = predict_probs(model, np.ascontiguousarray(turned), 64, tta="d4")
+        np.testing.assert_allclose(undo(q), p, atol=1e-5)
+    plain = predict_probs(model, img, 64, tta="none")
+    assert np.abs(np.rot90(predict_probs(model, np.rot90(img).copy(), 64, tta="none"), -1, (1, 2))
+                  - plain).max() > 1e-3      # the network alone is not equivariant
+    q = predict_probs(model, img[:, ::-1].copy(), 64, tta="flip")
+    np.testing.assert_allclose(q[:, :, ::-1], predict_probs(model, img, 64, tta="flip"), atol=1e-5)
+    from glsynth.train.data import preprocess
+    with torch.no_grad():
+        ref = torch.softmax(model(torch.from_numpy(preprocess(img, 64))[None])["seg"], 1)[0].numpy()
+    np.testing.assert_allclose(plain, ref, atol=1e-6)
+    with pytest.raises(InputError, match="test-time augmentation 'd8'"):
+        predict_probs(model, img, 64, tta="d8")
 
 
 def test_train_cli(synth, tmp_path):

@@ -34,11 +34,17 @@ def cmd_train(args):
         print(f"best on {args.val}: step {b['step']}, validation loss {b['loss']:.4f} -> {best_path(args.out)}")
 
 
+def add_tta_argument(p):
+    p.add_argument("--tta", default="d4", choices=("none", "flip", "d4"),
+                   help="test-time augmentation: average the logits over the mirror image (flip) "
+                        "or all eight flips and quarter turns (d4, the default); none: one view")
+
+
 def cmd_evaluate(args):
     from .evaluate import evaluate
     set_threads(args)
     s = evaluate(args.model, args.real, args.layout, args.out, device=args.device, size=args.size,
-                 grid_n=args.grid, progress=not args.quiet)
+                 grid_n=args.grid, progress=not args.quiet, tta=args.tta)
     print_summary(s)
     print(f"wrote {args.out}/report.md, per_image.csv, grid.png")
 
@@ -102,6 +108,7 @@ def register(sub):
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     p.add_argument("--size", type=int, default=None, help="shorter side (default: the training size)")
     p.add_argument("--grid", type=int, default=12, help="images in grid.png (default 12)")
+    add_tta_argument(p)
     p.add_argument("--threads", type=int, default=None, help="CPU threads for torch")
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(fn=cmd_evaluate)

@@ -8,9 +8,10 @@ Ground truth:
 * ``pairs`` layout (image + lesion mask, e.g. ISIC, PH2, DermoFit): lesion only; the
   mask says nothing about skin vs non-skin, so only lesion scores are reported.
 
-The prediction is the arg-max of the 3-class head, computed on the preprocessed image
-(Shades of Gray, resize so that the shorter side is the training size, normalise) and
-upsampled bilinearly (logits) to the original resolution, where it is scored.
+The prediction is the arg-max of the 3-class head's softmax, computed on the preprocessed
+image (Shades of Gray, resize so that the shorter side is the training size, normalise),
+averaged over the test-time views (``TTA``: none, a mirror image, or all eight flips and
+quarter turns) and upsampled bilinearly to the original resolution, where it is scored.
 Empty-mask conventions are those of ``glsynth.train.metrics`` (both empty: 1, included).
 """
 from __future__ import annotations
@@ -67,19 +68,41 @@ def read_real(path, layout):
         yield sid, rgb, truth_map(rgb.shape[:2], masks)
 
 
+# Test-time augmentation: the views of an image whose predictions are averaged (flip,
+# quarter turns). Training sees every flip and rotation, so each view is as valid as the
+# image itself, and their mean is less noisy than any one of them.
+TTA = {"none": [(False, 0)], "flip": [(False, 0), (True, 0)],
+       "d4": [(f, r) for f in (False, True) for r in range(4)]}
+TTA_TEXT = {"none": "one view", "flip": "logits averaged with the mirror image's",
+            "d4": "logits averaged over the eight flips and quarter turns"}
+
+
+def tta_views(tta: str) -> list:
+    """``TTA[tta]``: (mirror, quarter turns) per view; an unknown name is an InputError."""
+    if tta not in TTA:
+        raise InputError(f"unknown test-time augmentation {tta!r} (expected one of {sorted(TTA)})")
+    return TTA[tta]
+
+
 @torch.no_grad()
-def predict_probs(model, rgb: np.ndarray, size: int, device="cpu") -> np.ndarray:
+def predict_probs(model, rgb: np.ndarray, size: int, device="cpu", tta="none") -> np.ndarray:
     """3 x H x W float32 softmax probabilities (lesion, skin, non-skin) at the image's own
-    resolution (logits upsampled bilinearly, then the softmax)."""
+    resolution: the logits of the ``tta`` views (``TTA``), each turned back, averaged,
+    upsampled bilinearly, then the softmax."""
+    views = tta_views(tta)
     x = torch.from_numpy(preprocess(rgb, size))[None].to(device)
-    logits = model(x)["seg"]
-    logits = F.interpolate(logits, size=rgb.shape[:2], mode="bilinear", align_corners=False)
+    logits = 0
+    for flip, turns in views:
+        view = torch.rot90(x.flip(-1) if flip else x, turns, (-2, -1))
+        y = torch.rot90(model(view)["seg"], -turns, (-2, -1))
+        logits = logits + (y.flip(-1) if flip else y)
+    logits = F.interpolate(logits / len(views), size=rgb.shape[:2], mode="bilinear", align_corners=False)
     return torch.softmax(logits, 1)[0].float().cpu().numpy()
 
 
-def predict(model, rgb: np.ndarray, size: int, device="cpu") -> np.ndarray:
+def predict(model, rgb: np.ndarray, size: int, device="cpu", tta="none") -> np.ndarray:
     """HxW uint8 class map (0 lesion, 1 skin, 2 non-skin) at the image's own resolution."""
-    return predict_probs(model, rgb, size, device).argmax(0).astype(np.uint8)
+    return predict_probs(model, rgb, size, device, tta).argmax(0).astype(np.uint8)
 
 
 def truth_map(shape, masks: dict) -> np.ndarray:
@@ -197,12 +220,13 @@ def breakdown(rows, key, classes) -> dict:
 
 
 def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, progress=True,
-             extra=None):
+             extra=None, tta="d4"):
     """Score `model_path` on the real images in `real`; write report.md, per_image.csv,
     summary.json and grid.png to `out`. Returns the summary dict (``extra`` is merged
-    into it before it is written)."""
+    into it before it is written). tta: ``TTA``'s views averaged per image."""
     if layout not in ("fitz17k", "pairs"):
         raise InputError(f"unknown layout {layout!r} (expected 'fitz17k' or 'pairs')")
+    tta_views(tta)
     model, ck = load_model(model_path, device)
     size = int(size or ck["hparams"]["size"])
     samples = real_samples(real, layout, with_meta=True)
@@ -212,7 +236,7 @@ def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, 
     for sid, img_path, masks, meta in tqdm(samples, desc="evaluate", unit="img", disable=not progress):
         rgb = read_rgb(img_path)
         truth = truth_map(rgb.shape[:2], masks)
-        probs = predict_probs(model, rgb, size, device)
+        probs = predict_probs(model, rgb, size, device, tta)
         pred = probs.argmax(0).astype(np.uint8)
         rows.append({"id": sid, "image": img_path, "width": rgb.shape[1], "height": rgb.shape[0],
                      "diagnosis": meta.get("label") or "", "fitzpatrick": meta.get("fitzpatrick") or "",
@@ -227,6 +251,7 @@ def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, 
         wr.writerow({k: (f"{v:.6f}" if isinstance(v, float) else v) for k, v in r.items()})
     write_text(os.path.join(out, "per_image.csv"), buf.getvalue())
     summary = {"model": os.fspath(model_path), "real": os.fspath(real), "layout": layout, "size": size,
+               "tta": tta,
                "n_images": len(rows), "classes": summarise(rows, classes),
                "detection": summarise_detection(rows),
                "by_diagnosis": breakdown(rows, "diagnosis", classes),
@@ -243,7 +268,8 @@ def report_md(s):
              f"- model: `{s['model']}` ({s['model_steps']} training steps on {s['model_data']})",
              f"- images: `{s['real']}` ({s['layout']} layout), {s['n_images']} images",
              f"- preprocessing: Shades of Gray (p=6), shorter side resized to {s['size']} px, "
-             "ImageNet normalisation; scored at the original resolution", "",
+             "ImageNet normalisation; " + TTA_TEXT[s.get("tta", "none")] + "; scored at the "
+             "original resolution", "",
              "Per-image Jaccard (J) and Dice (D), mean ± std over images. Empty-mask convention: "
              "truth and prediction both empty → 1, truth empty but prediction not → 0; all images "
              "are included in the first columns; the last column leaves out images whose truth for "

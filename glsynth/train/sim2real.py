@@ -146,7 +146,7 @@ def time_train_steps(data, size, batch_size, width, depth, device, n=12, warmup=
 
 def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=False, data=None,
              device=None, seed=0, size=256, width=1.0, depth=0, batch_size=8, lr=2e-3,
-             gen_share=0.3, views_per_body=80, bodies_per_part=2, progress=True) -> dict:
+             gen_share=0.3, views_per_body=80, bodies_per_part=2, progress=True, tta="d4") -> dict:
     """Run the yardstick; returns the summary dict (also written to ``out/summary.json``)."""
     import torch
     from .evaluate import evaluate
@@ -231,7 +231,8 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
         "size": size, "width": width, "depth": depth, "n_parameters": ck.get("n_parameters"),
         "ema": ck["hparams"].get("ema", 0.0),
         "seed": seed}}
-    summary = evaluate(model_path, real, layout, out, device=device, progress=progress, extra=extra)
+    summary = evaluate(model_path, real, layout, out, device=device, progress=progress, extra=extra,
+                       tta=tta)
     spent["evaluate"] = time.perf_counter() - t0
     summary["sim2real"]["total_seconds"] = round(sum(spent.values()), 1)
     summary["jaccard"] = {c: v["jaccard_mean"] for c, v in summary["classes"].items()}
@@ -272,6 +273,7 @@ def report_md(s) -> str:
 
 
 def register(sub):
+    from .cli import add_tta_argument
     p = sub.add_parser("sim2real", help="generate, train and evaluate on real photographs "
                                         "within a time budget (the sim-to-real yardstick)")
     p.add_argument("--config", default=None, help="YAML config (default: the embedded default)")
@@ -297,6 +299,7 @@ def register(sub):
     p.add_argument("--views-per-body", type=int, default=80)
     p.add_argument("--bodies-per-part", type=int, default=2)
     p.add_argument("--threads", type=int, default=None, help="CPU threads for torch")
+    add_tta_argument(p)
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(fn=cmd_sim2real)
 
@@ -310,6 +313,6 @@ def cmd_sim2real(args):
                  val_layout=args.val_layout, resume=args.resume, data=args.data, device=args.device,
                  seed=args.seed, size=args.size, width=args.width, depth=args.depth,
                  gen_share=args.gen_share, views_per_body=args.views_per_body,
-                 bodies_per_part=args.bodies_per_part, progress=not args.quiet)
+                 bodies_per_part=args.bodies_per_part, progress=not args.quiet, tta=args.tta)
     print_summary(s)
     print(f"wrote {args.out}/report.md, summary.json, per_image.csv, grid.png")
