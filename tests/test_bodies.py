@@ -249,7 +249,59 @@ def test_nonskin_mask_covers_hair_and_eyes(tone_bodies, default_body):
         cheeks = (lab == 1) & (v[:, 2] > eye[2] - 0.02) & (v[:, 1] < eye[1] - 0.035) \
             & (v[:, 1] > eye[1] - 0.06) & (np.abs(v[:, 0] - eye[0]) > 0.03) \
             & (m.vertex_normals[vid][:, 2] > 0.5)
-        assert cheeks.sum() > 20 and ns[cheeks].mean() < 0.1
+        if body.meta["look"]["beard"] != "full":
+            assert cheeks.sum() > 20 and ns[cheeks].mean() < 0.1
+
+
+def test_beards_are_hair_labelled_non_skin_on_the_lower_face_only(cache):
+    """A full beard covers the chin, the jaw and the lower cheeks (non-skin, shaded as
+    hair); a moustache only the upper lip; above the eyes and on the nape the labels are
+    those of the same body clean-shaven, which is skin on the chin and jaw."""
+    def regions(beard):
+        body = make_body(seed=5, phenotype={"gender": 0.0, "age": 0.75}, beard=beard, pose="a-pose",
+                         texture_size=SIZE, cache_dir=cache)
+        m, size = body.mesh, body.mesh.texture.shape[0]
+        vid, row, col = _vertex_texels(m, size)
+        v, nrm, lab = m.vertices[vid], m.vertex_normals[vid], body.anatomy[vid]
+        n_comp, comp = connected_components(_components(len(m.vertices), m.faces), directed=False)
+        sizes = np.bincount(comp)
+        eye = m.vertices[np.isin(comp, np.flatnonzero(sizes < 100))].mean(0)
+        head, front = lab == 1, nrm[:, 2] > 0.3
+        dy = v[:, 1] - eye[1]
+        chin = head & front & (np.abs(v[:, 0] - eye[0]) < 0.015) & (dy < -0.10) & (dy > -0.12)
+        jaw = head & (np.abs(v[:, 0] - eye[0]) > 0.045) & (dy < -0.07) & (dy > -0.09) & (nrm[:, 1] < 0.3) \
+            & (v[:, 2] > eye[2] - 0.08)
+        upper = head & front & (dy > -0.01)                  # the eyes, brows, forehead
+        nape = head & (v[:, 2] < eye[2] - 0.12) & (dy < -0.1) & (nrm[:, 2] < -0.5)
+        ns, scalp = body.nonskin[row, col], m.skin.scalp_hair[row, col]
+        assert chin.sum() > 5 and jaw.sum() > 5 and upper.sum() > 20 and nape.sum() > 5
+        return {k: float(ns[r].mean()) for k, r in (("chin", chin), ("jaw", jaw), ("upper", upper),
+                                                     ("nape", nape))}, float(np.mean(scalp[chin] > 128)), body
+
+    full, hairy, body = regions("full")
+    assert body.meta["look"]["beard"] == "full"
+    assert full["chin"] > 0.9 and full["jaw"] > 0.8 and hairy > 0.8
+    bare, _, _ = regions("none")
+    assert bare["chin"] < 0.05 and bare["jaw"] < 0.05
+    assert full["upper"] == bare["upper"] and full["nape"] < 0.05
+    moustache, _, _ = regions("moustache")
+    assert moustache["chin"] < 0.05 and moustache["jaw"] < 0.05
+    with pytest.raises(ValueError, match="unknown beard 'mutton'"):
+        make_body(seed=5, beard="mutton", texture_size=SIZE, cache_dir=cache)
+
+
+def test_beards_are_drawn_for_adult_men_only_at_their_shares():
+    from glsynth.assets.skin import BEARDS, sample_look
+    rng = np.random.default_rng(3)
+    men = [sample_look(rng, 30.0, False, 0.75).beard for _ in range(3000)]
+    for style, share in BEARDS.items():
+        assert abs(men.count(style) / len(men) - share) < 0.03, style
+    assert {sample_look(rng, 30.0, True, 0.75).beard for _ in range(200)} == {"none"}
+    assert {sample_look(rng, 30.0, False, 0.4).beard for _ in range(200)} == {"none"}
+    # the beard is drawn after everything else: the rest of a look is as it was without it
+    a = sample_look(np.random.default_rng(7), 30.0, False, 0.75)
+    b = sample_look(np.random.default_rng(7), 30.0, False, 0.75, beard="goatee")
+    assert b.beard == "goatee" and {**a.to_dict(), "beard": "goatee"} == b.to_dict()
 
 
 def test_nevi_are_small_dark_skin_spots(cache):

@@ -80,7 +80,7 @@ class Body:
 
 
 def make_body(seed=0, fitzpatrick=None, ita=None, phenotype=None, pose=None, clothing=None,
-              texture_size=2048, cache_dir=None) -> Body:
+              texture_size=2048, cache_dir=None, beard=None) -> Body:
     """A seeded anny body. Anything not given is sampled from ``seed``: phenotype
     (sex, adult age, muscle, weight, height, proportions), skin tone (Fitzpatrick type
     uniformly, then an ITA inside its band), pose (one of ``POSES``) and clothing.
@@ -88,10 +88,11 @@ def make_body(seed=0, fitzpatrick=None, ita=None, phenotype=None, pose=None, clo
     fitzpatrick: 1..6; ita: degrees (wins over fitzpatrick, which must then agree);
     phenotype: dict overriding anny parameters (``PHENOTYPE_KEYS``, values 0..1);
     pose: a name in ``POSES``; clothing: see :func:`skin.normalise_clothing`;
-    texture_size: texture side in texels (>= 64; 2048 for full detail).
+    texture_size: texture side in texels (>= 64; 2048 for full detail); beard: a name in
+    ``skin.BEARDS`` (default: drawn for adult men).
     """
     args = {"seed": int(seed), "fitzpatrick": fitzpatrick, "ita": ita, "phenotype": phenotype,
-            "pose": pose, "clothing": clothing, "texture_size": int(texture_size)}
+            "pose": pose, "clothing": clothing, "texture_size": int(texture_size), "beard": beard}
     _check_args(args)
     key = _cache_key(args)
     path = _cache_path(args, key, cache_dir)
@@ -125,6 +126,8 @@ def _check_args(args):
             and fitzpatrick_from_ita(float(args["ita"])) != int(args["fitzpatrick"]):
         raise ValueError(f"ita {args['ita']} is not in the band of Fitzpatrick type "
                          f"{args['fitzpatrick']}")
+    if args["beard"] is not None and args["beard"] not in skin.BEARDS:
+        raise ValueError(f"unknown beard {args['beard']!r}; choose from {sorted(skin.BEARDS)}")
     if args["pose"] is not None and args["pose"] not in POSES:
         raise ValueError(f"unknown pose {args['pose']!r}; choose from {sorted(POSES)}")
     unknown = set(args["phenotype"] or {}) - set(PHENOTYPE_KEYS)
@@ -134,7 +137,7 @@ def _check_args(args):
         raise ValueError(f"texture_size must be >= 64, got {args['texture_size']}")
 
 
-def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size) -> dict:
+def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size, beard) -> dict:
     rngs = [np.random.default_rng([seed, k]) for k in range(4)]
     pheno = sample_phenotype(rngs[0])
     pheno.update({k: float(v) for k, v in (phenotype or {}).items()})
@@ -145,7 +148,7 @@ def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size) -> d
     fitz = fitzpatrick_from_ita(ita)
     pose = pose if pose is not None else list(POSES)[int(rngs[2].integers(len(POSES)))]
     female = pheno["gender"] > 0.5
-    look = skin.sample_look(rngs[3], ita, female, pheno["age"], clothing)
+    look = skin.sample_look(rngs[3], ita, female, pheno["age"], clothing, beard)
 
     st = _static()
     model = _model()

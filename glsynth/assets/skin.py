@@ -269,6 +269,7 @@ class Look:
     hirsute: float = 0.3           # 0..1, amount of terminal body hair
     oily: float = 0.5              # 0..1, sebum production
     blotchy: float = 0.35          # 0..1, how uneven the skin's redness is over centimetres
+    beard: str = "none"            # BEARDS: clean-shaven, stubble, moustache, goatee, full
 
     def to_dict(self) -> dict:
         return {"ita": self.ita, "hair": self.hair, "hair_rgb": list(self.hair_rgb),
@@ -276,7 +277,8 @@ class Look:
                 "n_nevi": self.n_nevi, "freckles": self.freckles,
                 "receding": self.receding, "hair_texture": self.hair_texture,
                 "seed": self.seed, "male": self.male, "age": self.age,
-                "hirsute": self.hirsute, "oily": self.oily, "blotchy": self.blotchy}
+                "hirsute": self.hirsute, "oily": self.oily, "blotchy": self.blotchy,
+                "beard": self.beard}
 
 
 def normalise_clothing(clothing, female: bool, rng: np.random.Generator) -> dict:
@@ -310,9 +312,20 @@ def normalise_clothing(clothing, female: bool, rng: np.random.Generator) -> dict
     return out
 
 
+# Facial hair of adult men, and the share of each style: about a third of men wear some
+# beard or moustache (surveys in Europe and the Americas give 30-50%), which clinical
+# photographs of the face, neck and scalp show. Stubble is short hair on skin (skin, as
+# the body's terminal hair is); moustache, goatee and full beard are painted as hair and
+# labelled non-skin, as scalp hair is and as DermSynth3D's masks mark a beard.
+BEARDS = {"none": 0.45, "stubble": 0.17, "moustache": 0.1, "goatee": 0.1, "full": 0.18}
+
+
 def sample_look(rng: np.random.Generator, ita: float, female: bool, age: float,
-                clothing=None) -> Look:
-    """Seeded hair, eyes, clothing, nevi for a body (age: anny's 0..1 age parameter)."""
+                clothing=None, beard=None) -> Look:
+    """Seeded hair, eyes, clothing, nevi for a body (age: anny's 0..1 age parameter);
+    ``beard``: a name in ``BEARDS`` (default: drawn for adult men, none otherwise)."""
+    if beard is not None and beard not in BEARDS:
+        raise ValueError(f"unknown beard {beard!r}; choose from {sorted(BEARDS)}")
     dark = ita < 10
     old = _ageing(age)
     hair_p = {"black": 3 if dark else 1, "dark-brown": 3, "brown": 1 if dark else 3,
@@ -328,7 +341,7 @@ def sample_look(rng: np.random.Generator, ita: float, female: bool, age: float,
     wi = np.array([iris_p[n] for n in inames])
     iris = inames[rng.choice(len(inames), p=wi / wi.sum())]
     hair = "long" if female else ("none" if rng.random() < 0.12 + 0.2 * old else "short")
-    return Look(
+    look = Look(
         ita=float(ita), hair=hair, hair_rgb=HAIR_COLOURS[hair_name], iris_rgb=IRIS_COLOURS[iris],
         clothing=normalise_clothing(clothing, female, rng),
         n_nevi=int(rng.integers(4, 16)),
@@ -340,6 +353,12 @@ def sample_look(rng: np.random.Generator, ita: float, female: bool, age: float,
         hirsute=float(rng.uniform(0.25, 1.0) if not female else rng.uniform(0.0, 0.3)),
         oily=float(np.clip(rng.uniform(0.2, 1.0) - 0.5 * old, 0, 1)),
         blotchy=float(rng.beta(1.5, 1.5)))
+    # drawn last, so that the draws above (and the looks they gave) stay as they were
+    styles = list(BEARDS)
+    drawn = styles[rng.choice(len(styles), p=np.array(list(BEARDS.values())))]
+    adult_man = not female and age > 0.55           # anny: 1/3 child, 2/3 young adult
+    look.beard = beard if beard is not None else (drawn if adult_man else "none")
+    return look
 
 
 # ---- painting ---------------------------------------------------------------------------
@@ -453,6 +472,8 @@ class _Painter:
         self.mouth_and_eyes()
         if look.hair != "none":
             self.hair()
+        if look.beard in ("moustache", "goatee", "full"):
+            self.beard()
         self.eyebrows()
         self.clothing()
         nevi_mask, boxes = self.nevi(lab)   # on the skin layer, away from non-skin
@@ -521,7 +542,8 @@ class _Painter:
             front = _smoothstep(-0.2, 0.4, n[:, 2])
             terminal += trunk * h * (0.8 * front + 0.4 * (1 - front)) * (h > 0.5)
             beard = face * (p[:, 1] < eye[1] - 0.05 * s) * _smoothstep(0.0, 0.2, n[:, 2])
-            terminal += 0.9 * beard * (0.3 + 0.7 * h)
+            shaved = 0.35 if look.beard == "none" else 1.0
+            terminal += 0.9 * shaved * beard * (0.3 + 0.7 * h)
         hair = np.where(palms > 0.5, 0.0, 0.25 + 0.75 * np.clip(terminal, 0, 1))
         oil = (0.25 + 0.65 * tzone + 0.2 * face + 0.2 * ch["torso"] * (1 - ch["head"])
                - 0.15 * (shin + ch["feet"])) * (0.5 + look.oily)
@@ -793,6 +815,52 @@ class _Painter:
         density = _smoothstep(-0.8, 1.6, inside + 0.9 * strands) * where
         self.over(self._hair_colour(p, strands), density, region=(inside > 0) * where, sel=sel,
                   scalp=True)
+
+    def beard_cover(self, style, lips):
+        """Per texel 0..1: where ``style``'s hair grows (soft edges, before strands).
+        From the mouth (the lips' centre) and eyes: a moustache over the upper lip; a
+        goatee adds the chin; a full beard runs from the moustache up the cheeks to
+        sideburns in front of the ears, and down under the jaw to a neckline 2-3 cm below
+        the chin. The lips stay bare."""
+        tx, j, s = self.tx, self.j, self.scale
+        p, head = tx.pos, tx.ch["head"]
+        eye = 0.5 * (j["eye.L"] + j["eye.R"])
+        mouth = (p * lips[:, None]).sum(0) / max(lips.sum(), 1e-6)
+        ax = np.abs(p[:, 0] - eye[0]) / s                    # sideways from the midline
+        dy = (p[:, 1] - mouth[1]) / s                        # up from the mouth
+        edge = 0.003 * self.noise.fbm(p, 150.0 / s, 2)       # a ragged margin, metres / s
+        front = _smoothstep(eye[2] - 0.11 * s, eye[2] - 0.085 * s, p[:, 2])  # before the ears
+        face = _smoothstep(eye[2] - 0.06 * s, eye[2] - 0.04 * s, p[:, 2])    # not the nape
+        # moustache: from the lip's margin to the nose, its ends drooping at the corners
+        top, bottom = 0.017 - 0.25 * ax, 0.004 - 0.5 * np.maximum(ax - 0.015, 0)
+        cover = _smoothstep(bottom - 0.002, bottom + 0.002, dy + edge) \
+            * (1 - _smoothstep(top - 0.002, top + 0.002, dy + edge)) \
+            * (1 - _smoothstep(0.027, 0.033, ax + edge)) * face
+        if style in ("goatee", "full"):   # an oval on the chin, below the lower lip
+            r = np.hypot(ax / 0.024, (dy + 0.036) / 0.03)
+            cover = np.maximum(cover, (1 - _smoothstep(0.85, 1.1, r + edge / 0.03)) * face)
+        if style == "full":
+            side = _smoothstep(0.02, 0.07, ax)
+            top = 0.012 + (eye[1] - mouth[1] - 0.022 * s) / s * side    # cheek line to sideburn
+            bottom = -0.07 + 0.03 * side                                # neckline
+            cheeks = (1 - _smoothstep(top - 0.004, top + 0.004, dy + edge)) \
+                * _smoothstep(bottom - 0.004, bottom + 0.004, dy + edge) * front
+            cover = np.maximum(cover, cheeks)
+        return cover * _smoothstep(0.3, 0.6, head) * (1 - np.clip(2 * lips, 0, 1))
+
+    def beard(self):
+        tx, nz = self.tx, self.noise
+        lips = tx.sample(_mpfb_mask("lips", tx.size))
+        cover = self.beard_cover(self.look.beard, lips)
+        sel = np.flatnonzero(cover > 0.01)
+        p = tx.pos[sel]
+        # hairs grow downwards: a grain stretched along y (tight curls: isotropic clumps)
+        stretch = np.array([1.0, 1.0 if self.look.hair_texture == "coily" else 0.3, 1.0])
+        strands = nz.fbm(p * stretch, 0.25 / max(self.texel_m, 4e-4), 2)
+        c = cover[sel]
+        density = np.clip(c * (0.9 + 0.3 * strands), 0, 1) * _smoothstep(0.0, 0.35, c)
+        self.over(self._hair_colour(p, 0.5 * strands, darken=0.9), density,
+                  region=(c > 0.5).astype(np.float32), sel=sel, scalp=True)
 
     def eyebrows(self):
         tx, j, s, nz = self.tx, self.j, self.scale, self.noise
