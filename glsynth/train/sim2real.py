@@ -2,7 +2,8 @@
 
 One command, one time budget: generate a dataset from the config (or reuse one), train
 the segmentation network on it, pick the checkpoint on a real validation folder when one
-is given (the paper's model selection), evaluate on the real folder and write
+is given (the paper's model selection), evaluate on the real folder (logits averaged
+over the eight flips and quarter turns unless ``--tta`` says otherwise) and write
 ``report.md``, ``summary.json``, ``per_image.csv`` and ``grid.png``.
 
 How the budget is split (``--gen-share``, default 0.3 of what the evaluation leaves):
