@@ -126,8 +126,6 @@ def _check_args(args):
             and fitzpatrick_from_ita(float(args["ita"])) != int(args["fitzpatrick"]):
         raise ValueError(f"ita {args['ita']} is not in the band of Fitzpatrick type "
                          f"{args['fitzpatrick']}")
-    if args["beard"] is not None and args["beard"] not in skin.BEARDS:
-        raise ValueError(f"unknown beard {args['beard']!r}; choose from {sorted(skin.BEARDS)}")
     if args["pose"] is not None and args["pose"] not in POSES:
         raise ValueError(f"unknown pose {args['pose']!r}; choose from {sorted(POSES)}")
     unknown = set(args["phenotype"] or {}) - set(PHENOTYPE_KEYS)

@@ -816,14 +816,15 @@ class _Painter:
         self.over(self._hair_colour(p, strands), density, region=(inside > 0) * where, sel=sel,
                   scalp=True)
 
-    def beard_cover(self, style, lips):
-        """Per texel 0..1: where ``style``'s hair grows (soft edges, before strands).
+    def beard_cover(self, style, lips, sel):
+        """Per texel of ``sel`` (indices; ``lips``: their lip mask) 0..1: where
+        ``style``'s hair grows (soft edges, before strands).
         From the mouth (the lips' centre) and eyes: a moustache over the upper lip; a
         goatee adds the chin; a full beard runs from the moustache up the cheeks to
         sideburns in front of the ears, and down under the jaw to a neckline 2-3 cm below
         the chin. The lips stay bare."""
         tx, j, s = self.tx, self.j, self.scale
-        p, head = tx.pos, tx.ch["head"]
+        p, head = tx.pos[sel], tx.ch["head"][sel]
         eye = 0.5 * (j["eye.L"] + j["eye.R"])
         mouth = (p * lips[:, None]).sum(0) / max(lips.sum(), 1e-6)
         ax = np.abs(p[:, 0] - eye[0]) / s                    # sideways from the midline
@@ -850,17 +851,17 @@ class _Painter:
 
     def beard(self):
         tx, nz = self.tx, self.noise
-        lips = tx.sample(_mpfb_mask("lips", tx.size))
-        cover = self.beard_cover(self.look.beard, lips)
-        sel = np.flatnonzero(cover > 0.01)
+        head = np.flatnonzero(tx.ch["head"] > 0.3)     # beard_cover is 0 elsewhere
+        cover = self.beard_cover(self.look.beard, tx.sample(_mpfb_mask("lips", tx.size))[head], head)
+        keep = cover > 0.01
+        sel, cover = head[keep], cover[keep]
         p = tx.pos[sel]
         # hairs grow downwards: a grain stretched along y (tight curls: isotropic clumps)
         stretch = np.array([1.0, 1.0 if self.look.hair_texture == "coily" else 0.3, 1.0])
         strands = nz.fbm(p * stretch, 0.25 / max(self.texel_m, 4e-4), 2)
-        c = cover[sel]
-        density = np.clip(c * (0.9 + 0.3 * strands), 0, 1) * _smoothstep(0.0, 0.35, c)
+        density = np.clip(cover * (0.9 + 0.3 * strands), 0, 1) * _smoothstep(0.0, 0.35, cover)
         self.over(self._hair_colour(p, 0.5 * strands, darken=0.9), density,
-                  region=(c > 0.5).astype(np.float32), sel=sel, scalp=True)
+                  region=(cover > 0.5).astype(np.float32), sel=sel, scalp=True)
 
     def eyebrows(self):
         tx, j, s, nz = self.tx, self.j, self.scale, self.noise
