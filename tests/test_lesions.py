@@ -728,8 +728,9 @@ def test_spots_match_the_nearest_spot_everywhere(rng):
 
 def test_purpura_is_purple_and_comes_as_petechiae_papules_or_a_bruise(rng):
     """Blood outside the vessels reads purple on light skin: darker, redder and less
-    yellow than the skin around it. Petechiae are many pinpoint instances; palpable
-    purpura is raised; a bruise is flat."""
+    yellow than the skin around it. An old bruise (age 0.7 and more) may turn yellow
+    overall, but its yellow sits at the rim, where the blood is thin and broken down.
+    Petechiae are many pinpoint instances; palpable purpura is raised; a bruise is flat."""
     from glsynth.assets.lesions import reference_skin
     from glsynth.assets.morphology import apply_to_skin, make_condition
     seen = {}
@@ -743,8 +744,15 @@ def test_purpura_is_purple_and_comes_as_petechiae_papules_or_a_bruise(rng):
         lab, base = srgb_to_lab(apply_to_skin(f, skin)), srgb_to_lab(skin)
         blood = f.f["blood_add"]
         core = f.mask & (blood > 0.6 * blood.max()) & (f.f["crust"] < 0.05)
-        dl = np.median(lab[core], 0) - np.median(base[~ndimage.binary_dilation(f.mask, iterations=5)], 0)
-        assert dl[0] < -8 and dl[1] > 5 and dl[2] < 0, (kind, dl)
+        around = np.median(base[~ndimage.binary_dilation(f.mask, iterations=5)], 0)
+        dl = np.median(lab[core], 0) - around
+        assert dl[0] < -8 and dl[1] > 5, (kind, dl)
+        if kind == "ecchymosis" and f.params["age"] >= 0.7:
+            rim = f.mask & (blood < 0.3 * blood.max())
+            rim_yellow = np.median(lab[rim], 0)[2] - around[2]
+            assert rim_yellow > 0 and dl[2] < rim_yellow - 3, (f.params, dl, rim_yellow)
+        else:
+            assert dl[2] < 0, (f.params, dl)
         flat = f.f["height"][f.mask].max() < 0.01
         if kind == "petechiae":
             areas = ndimage.sum(f.mask, f.instances, range(1, f.instances.max() + 1)) * f.mm_per_px ** 2

@@ -809,13 +809,16 @@ def _purpura(b, rng, R):
         w = b.weight(sd, R * 0.45, "ill-defined")
         age = rng.uniform(0, 1)                                          # fresh -> fading
         # the bruise clears from its edge: old blood (and its breakdown) is left at the rim
-        core = smoothstep(-0.2, 1.0, sd / R + 0.4 * c.noise(R / 2, 2) - 0.6 * age)
+        core = smoothstep(-0.2, 1.0, sd / R + 0.4 * c.noise(R / 2, 2) - 0.45 * age)
         blood = w * (0.15 + 0.35 * core) * (1 - 0.5 * age)
         b.f["blood_add"] += blood
         b.mix("oxygen", w, 0.2)
         b.mix("scatter", w * core, rng.uniform(0.35, 0.6))
-        b.f["bilirubin"] += w * (1 - 0.7 * core) * 0.35 * age
-        b.f["dermal_melanin"] += w * 0.006 * age                         # haemosiderin brown
+        # macrophages break the blood down where it lies thin, so bilirubin yellow and
+        # haemosiderin brown gather at the rim while the thick core stays blue-purple
+        rim = w * (1 - core) ** 2
+        b.f["bilirubin"] += rim * 0.35 * age
+        b.f["dermal_melanin"] += rim * 0.006 * age
         b.outline(w, 0.4)
         return {"kind": kind, "age": round(float(age), 2)}
     # spots a few radii apart, denser in some crops than others
