@@ -232,7 +232,7 @@ def test_interrupted_training_resumes_to_the_same_weights(synth, tmp_path):
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".tmp-")]
 
 
-def test_planned_steps_are_fitted_to_the_time_once(synth, tmp_path):
+def test_planned_steps_are_fitted_to_the_time(synth, tmp_path):
     """A plan far too long for its minutes is cut, after two epochs, to what the time
     allows, and the run then ends at the fitted step with its schedule complete; a
     resumed run keeps the fitted length."""
@@ -245,6 +245,27 @@ def test_planned_steps_are_fitted_to_the_time_once(synth, tmp_path):
     assert again["hparams"]["steps"] == h["steps"] and again["step"] == h["steps"]
     plain = train(synth, tmp_path / "p.pt", steps=6, **kw)   # no fitting asked: the plan stands
     assert plain["step"] == 6 and not plain["hparams"]["fitted"]
+
+
+def test_one_slow_epoch_does_not_shorten_the_fitted_plan(synth, tmp_path, monkeypatch):
+    """The second epoch runs ~25x slower (as when another process takes the CPU), the
+    later ones at full speed: the plan is fitted again from the epochs' median time, so
+    the run goes on far past the ~15 steps the slow epoch alone allows, and still ends
+    with its schedule complete within the time."""
+    import time
+    from glsynth.train.trainer import TrainSet
+    get = TrainSet.__getitem__
+
+    def slow_in_epoch_2(self, key):
+        if key[0] == 1:
+            time.sleep(0.25)
+        return get(self, key)
+    monkeypatch.setattr(TrainSet, "__getitem__", slow_in_epoch_2)
+    kw = dict(FAST, size=48, seed=5, batch_size=2)   # 2 batches per epoch
+    t0 = time.time()
+    ck = train(synth, tmp_path / "m.pt", steps=1_000_000, fit_minutes=0.1, time_limit=5, **kw)
+    assert ck["hparams"]["fitted"] and ck["step"] == ck["hparams"]["steps"] > 40
+    assert ck["stopped"] is None and time.time() - t0 < 0.1 * 60 * 1.5
 
 
 def test_weight_average_follows_its_recurrence_with_the_warm_up():

@@ -194,7 +194,8 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
             raise UnavailableError(f"no data was generated within {minutes} minutes")
     n_images = sum(len(sample_ids(f)) for f in folders)
 
-    # 2. training: its length in steps fixed once from a timing of real steps
+    # 2. training: a first plan of its steps from a timing of real steps, which the
+    #    trainer fits again to the time left (fit_minutes)
     ckpt = os.path.join(out, "model.pt")
     train_budget = max(work - sum(spent.values()), 0.0)
     if "steps" not in state:

@@ -284,10 +284,12 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
     val: a folder of real images (``val_layout``) scored every ``val_every`` steps
     (default: 8 times an epoch, at most every 250 steps) and at the end; the weights with
     the lowest validation loss are also written to ``best_path(out)``.
-    fit_minutes: with ``steps``, fit the run's length once to end within this many
-    minutes of this invocation's start, from the measured time of its second epoch (a
-    plan from a short timing misjudged long runs' steps by up to a quarter, so that
-    the time limit cut the schedule short or the budget went unused).
+    fit_minutes: with ``steps``, fit the run's length to end within this many minutes
+    of this invocation's start: at the end of each epoch from the second on, while the
+    schedule is in its first half, from the median time per step of the epochs after
+    the first (which fills the sample cache). A plan from a short timing misjudged long
+    runs' steps by up to a quarter, and one fitted once, from the second epoch, left
+    40% of a yardstick's budget unused when another process slowed that epoch 4x.
     cache_gb: memory for decoded synthetic samples (``TrainSet``).
     real_train: a folder of real training images mixed into every batch at
     ``real_ratio`` (staged training: ``init`` from a synthetic-pretrained checkpoint
@@ -454,13 +456,14 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
                       f"step {step}, {time.time() - t0:.0f} s", flush=True)
             running = {k: [] for k in running}
             epoch_ends.append((time.time(), step))
-            if fit_minutes and steps is not None and len(epoch_ends) == 2 and step < total:
-                (ta, sa), (tb, sb) = epoch_ends
-                left = fit_minutes * 60 - (tb - t0)
-                total = max(step + 1, step + int(left * (sb - sa) / max(tb - ta, 1e-9)))
-                epochs, fit_minutes = math.ceil(total / n_batches), None
+            if fit_minutes and steps is not None and len(epoch_ends) >= 2 and step < total / 2:
+                per_step = float(np.median([(tb - ta) / max(sb - sa, 1) for (ta, sa), (tb, sb)
+                                            in zip(epoch_ends, epoch_ends[1:])]))
+                left = fit_minutes * 60 - (epoch_ends[-1][0] - t0)
+                total = max(step + 1, step + int(left / max(per_step, 1e-9)))
+                epochs = math.ceil(total / n_batches)
                 hparams.update(steps=total, fitted=True)
-                log.info("steps fitted to %.1f minutes: %d in all", left / 60, total)
+                log.info("steps fitted to %.1f minutes left: %d in all", left / 60, total)
             epoch, pos = (epoch + 1, 0) if pos >= n_batches else (epochs, pos)
         validate()
         final = state(stopped or "finished")
