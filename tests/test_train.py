@@ -525,6 +525,28 @@ def test_augmentation_is_seeded_and_degrades_like_a_camera():
     assert np.median(seen) > 30      # stripes stay resolved when magnified
 
 
+def test_uneven_light_only_takes_light_away_smoothly_within_its_stops(rng, monkeypatch):
+    """On a flat grey frame the light field keeps full light somewhere, takes at most
+    UNEVEN_STOPS away (in linear light), varies smoothly (no step between neighbours
+    larger than the field's span allows) and leaves hue alone; with p 0 it is off."""
+    from glsynth.train import data as D
+    monkeypatch.setattr(D, "UNEVEN_LIGHT", 1.0)
+    img = np.full((64, 96, 3), (180, 140, 120), np.uint8)
+    spans = []
+    for seed in rng.integers(2 ** 31, size=20):
+        out = D._uneven_light(np.random.default_rng(int(seed)), img).astype(np.float64)
+        lin = (out / 255) ** 2.2 / (img / 255.0) ** 2.2
+        assert lin.max() <= 1.02 and lin.max() > 0.97
+        assert lin.min() >= 2.0 ** -D.UNEVEN_STOPS - 0.02
+        assert np.abs(np.diff(out, axis=1)).max() <= 4 and np.abs(np.diff(out, axis=0)).max() <= 4
+        ratio = lin[..., 0] / lin[..., 2]
+        assert np.abs(ratio - 1).max() < 0.1            # one gain for R, G and B
+        spans.append(np.log2(lin.max() / lin.min()))
+    assert max(spans) > 0.5                             # it does darken parts of the frame
+    monkeypatch.setattr(D, "UNEVEN_LIGHT", 0.0)
+    assert (D._uneven_light(np.random.default_rng(0), img) == img).all()
+
+
 def test_normalise_is_shades_of_gray_then_imagenet_statistics(rng):
     from glsynth.assets.colour import shades_of_gray
     from glsynth.train import data as D
