@@ -13,8 +13,8 @@ views) and translation, applied as one affine warp to the image (bilinear) and t
 label map (nearest); brightness, contrast, saturation and hue shifts and a per-channel
 gain (a colour cast, which Shades of Gray partly undoes, as it would on a real
 photograph); light that falls off across the frame (half the crops); then blur, sensor
-noise and JPEG compression, all before the colour constancy step. Pixels that the warp brings in from outside the image are marked 255
-(ignored) in the labels.
+noise and JPEG compression, all before the colour constancy step. Pixels that the warp
+brings in from outside the image are marked 255 (ignored) in the labels.
 """
 from __future__ import annotations
 
