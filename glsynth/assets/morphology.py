@@ -565,14 +565,18 @@ def _seb_keratosis(b, rng, R):
     c = b.c
     sd = c.shape("oval", R, aspect=rng.uniform(0.6, 0.95), irregular=0.12, warp=0.06)
     w = b.weight(sd, R * 0.05)                                          # stuck-on: sharp
-    b.f["melanin_add"] += w * (0.8 + 0.2 * c.noise(R / 4, 2)) * rng.uniform(0.08, 0.4)
+    mottle = 0.8 + 0.2 * c.noise(R / 4, 2)
+    level = rng.uniform(0.08, 0.4)
+    b.f["melanin_add"] += w * mottle * level
     # a dull, papillomatous surface: winding ridges (~1 mm, "cerebriform") with darker
     # keratin packed in the fissures between them, keratin plugs, and a few small
     # milia-like cysts
     folds = np.abs(c.noise(max(0.5, R / 8), 2))
     fissure = 1 - smoothstep(0.0, 0.3, folds)
     b.f["height"] += w * (0.3 + 0.25 * smoothstep(0.0, 0.8, folds)) * rng.uniform(0.6, 1.2)
-    b.f["melanin_add"] += w * fissure * rng.uniform(0.05, 0.15)
+    # (the keratin there is as pigmented as the lesion, so a darker SK's fissures are
+    # darker: a fixed amount was lost in a dark one's mottling)
+    b.f["melanin_add"] += w * fissure * (rng.uniform(0.05, 0.15) + 0.25 * level)
     plugs = smoothstep(1.9, 2.4, c.noise(max(0.3, R / 20), 1)) * w     # comedo-like openings
     b.f["melanin_add"] += 0.4 * plugs
     b.f["detail"] *= 1 + 0.3 * w
