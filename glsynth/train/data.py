@@ -125,15 +125,15 @@ def _uneven_light(rng, img):
     angle, blob_at, blob_w = rng.uniform(0, 2 * np.pi), rng.uniform(-0.5, 0.5, 2), rng.uniform(0, 1)
     if not apply:
         return img
+    from ..pipeline.photo import linear_to_srgb8, srgb_to_linear
     h, w = img.shape[:2]
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     x, y = 2 * xx / w - 1, 2 * yy / h - 1
-    ramp = np.cos(angle) * x + np.sin(angle) * y                   # -1.4..1.4
+    ramp = np.cos(angle) * x + np.sin(angle) * y
     blob = np.exp(-((x - blob_at[0]) ** 2 + (y - blob_at[1]) ** 2) / (2 * 0.33 ** 2))
-    field = (1 - blob_w) * (ramp - ramp.max()) / max(np.ptp(ramp), 1e-6) + blob_w * (blob - 1)
+    field = (1 - blob_w) * ramp / max(np.ptp(ramp), 1e-6) + blob_w * blob   # each spans <= 1
     gain = np.exp2(stops * (field - field.max()))[..., None]       # full light at its brightest
-    lin = (img.astype(np.float32) / 255.0) ** 2.2 * gain
-    return np.clip(np.rint(lin ** (1 / 2.2) * 255.0), 0, 255).astype(np.uint8)
+    return linear_to_srgb8(srgb_to_linear(img) * gain)
 
 
 def _degrade(rng, img):
