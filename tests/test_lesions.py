@@ -867,6 +867,11 @@ def test_vitiligo_is_a_whole_white_patch_some_trichrome_or_repigmenting(rng):
         lab = srgb_to_lab(apply_to_skin(f, reference_skin(5, 128, np.random.default_rng(int(seed)))))
         lab0 = srgb_to_lab(reference_skin(5, 128, np.random.default_rng(int(seed))))
         assert np.median(lab[core, 0]) > np.median(lab0[~f.mask, 0]) + 15
+    # which kinds occur, over more (coarse) draws: with 16 alone, all plain or repigmenting
+    # came up about once in 60 seeds
+    for seed in rng.integers(2 ** 31, size=48):
+        f = make_condition("vitiligo", [int(seed)], size=48)
+        kinds.add((f.params["trichrome"], f.params["repigmenting"]))
     assert len(kinds) >= 3 and (False, False) in kinds
 
 
