@@ -3,8 +3,10 @@
 // light (the sRGB texture is decoded, the result encoded again):
 //   colour = albedo * sum(ambient + E * diffuse) + sum(E * specular),  E = light.diffuse
 // * diffuse: wrap lighting that reaches further past the terminator in red than in
-//   blue, on a normal that is softer in red than in blue (light scattered under the
-//   skin blurs the relief more at long wavelengths);
+//   blue, on a normal whose micro-relief is softer in red than in blue (light scattered
+//   under the skin blurs sub-millimetre relief more at long wavelengths); a lesion's
+//   relief (decals: domes, ulcer walls, scale) is millimetres to centimetres across and
+//   shades every channel alike, as the surface's own shape does;
 // * specular: one GGX lobe with Smith masking and Schlick's Fresnel (F0 0.028, skin's
 //   refractive index 1.4); sebum (the per-body oiliness map) sharpens and raises it.
 // With DETAIL, micro-detail that no body texture could hold (glsynth.assets.detail):
@@ -180,6 +182,7 @@ void main() {
     // (alpha below 0: scalp hair, its coverage)
     float detail_weight = max(tex.a, 0.0), scalp = max(-tex.a, 0.0), gloss = 0.0;
     vec3 grad = vec3(0.0);         // height gradient of relief and lesions, world units
+    vec3 n_shape = ng;             // the surface's shape: its geometry and lesion relief
 #if DECALS
     vec4 daux;
     vec3 dax, day;
@@ -190,6 +193,8 @@ void main() {
     gloss = daux.b * dcol.a;
     vec2 dslope = (daux.xy * 255.0 - 128.0) / 127.0 * DECAL_SLOPE * dcol.a;
     grad += dslope.x * dax + dslope.y * day;
+    vec3 ns = ng - (grad - ng * dot(ng, grad));
+    n_shape = ns / max(length(ns), 1e-20);
 #endif
 #if DETAIL
     vec4 prm = texture(u_params, vec2(uv.x, 1.0 - uv.y)) * min(detail_weight, 1.0);
@@ -359,7 +364,7 @@ void main() {
 #endif
         vis *= falloff_gain(length(to_light), u_light_falloff[i]);
         float nl_detail = dot(n, l);
-        float nl_geo = dot(ng, l);
+        float nl_geo = dot(n_shape, l);
         vec3 nl = mix(vec3(nl_detail), vec3(nl_geo), vec3(0.6, 0.3, 0.15));
         vec3 diffuse = max((nl + wrap) / (1.0 + wrap), 0.0);
         float shade = i == 0 ? 1.0 - 0.6 * clamp(hair_shadow, 0.0, 1.0) : 1.0;

@@ -134,18 +134,16 @@ F0_SKIN = 0.028   # Fresnel reflectance of skin at normal incidence (refractive 
 WRAP_RGB = (1.0, 0.6, 0.45)   # how far each channel's diffuse wraps, relative to Material.wrap
 
 
-SOFT_RGB = (0.6, 0.3, 0.15)   # how much of the geometric normal each channel's diffuse sees
-
-
 def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=None):
     """The skin reflectance of ``shaders/skin.frag`` without micro-detail, in linear
     light: ``colour = albedo * light + specular`` (then sRGB-encoded by the caller).
     Diffuse: wrap lighting, wider in red than in blue; specular: GGX with Smith masking
     and Schlick's Fresnel, each light's ``diffuse`` colour its intensity for both; the
     oiliness is ``material.oil / 2`` (as the shader's without detail); ``gloss``
-    (B, H, W, 1) sharpens and raises the specular lobe (decals of moist lesions). With a
-    relief-perturbed ``normal``, ``geometric`` is the surface's own: the diffuse term
-    of red sees mostly it, blue mostly the relief (light scattered under the skin)."""
+    (B, H, W, 1) sharpens and raises the specular lobe (decals of moist lesions).
+    ``normal`` may carry a lesion's relief, which shades every channel alike (the
+    shader softens only the sub-millimetre micro-relief, which this path has not);
+    ``geometric``, the surface's own normal, then sets the ambient light's gain."""
     dt, dev = position.dtype, position.device
     n = F.normalize(normal, dim=-1, eps=1e-30)
     v = F.normalize(eye[:, None, None, :] - position, dim=-1, eps=1e-20)
@@ -165,10 +163,7 @@ def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=No
         to_light = lp - position
         l = F.normalize(to_light, dim=-1, eps=1e-20)
         nl = (n * l).sum(-1, keepdim=True)
-        nl_rgb = nl
-        if geometric is not None:
-            nl_rgb = nl + ((ng * l).sum(-1, keepdim=True) - nl) * torch.tensor(SOFT_RGB, dtype=dt, device=dev)
-        diffuse = ((nl_rgb + wrap) / (1 + wrap)).clamp(min=0)
+        diffuse = ((nl + wrap) / (1 + wrap)).clamp(min=0)
         e = torch.tensor(light.diffuse, dtype=dt, device=dev) \
             * falloff_gain(to_light.norm(dim=-1, keepdim=True), light.falloff_distance)
         light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) \
