@@ -557,6 +557,30 @@ def test_vascular_lesions_are_deep_red(preset, min_a):
         assert a > min_a and L < 50, (seed, np.median(lab[core], 0))
 
 
+def test_ulcer_floor_lies_below_the_skin_under_pale_slough(rng):
+    """An ulcer's floor lies below the skin round it (its granules and slough never lift
+    it above), deepest for pyoderma gangrenosum and pressure ulcers; its slough is pale
+    yellow-white, far lighter and less red than the granulating bed it lies on; all
+    three kinds occur."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    depth = {}
+    for seed in rng.integers(2 ** 31, size=24):
+        f = make_condition("ulcer", [int(seed)], size=96)
+        d = ndimage.distance_transform_edt(f.mask)
+        floor = np.median(f.f["height"][d > 0.6 * d.max()])
+        around = np.median(f.f["height"][~ndimage.binary_dilation(f.mask, iterations=3)])
+        assert floor < around - 0.15, (seed, f.params, floor, around)
+        depth.setdefault(f.params["kind"], []).append(around - floor)
+        slough, bed = f.f["crust"] > 0.5, f.mask & (f.f["crust"] < 0.05) & (f.f["epidermis"] < 0.1)
+        if slough.sum() > 20:
+            lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 96, np.random.default_rng(int(seed)))))
+            (l_s, a_s, b_s), (l_b, a_b, _) = np.median(lab[slough], 0), np.median(lab[bed], 0)
+            assert l_s > l_b + 6 and a_s < a_b - 15 and b_s > a_s, (seed, lab[slough].mean(0))
+    assert set(depth) == {"venous", "pressure", "pyoderma"}, depth
+    assert np.median(depth["venous"]) < min(np.median(depth["pressure"]), np.median(depth["pyoderma"]))
+
+
 def test_pyogenic_granuloma_is_a_crimson_dome(rng):
     """A pyogenic granuloma rises to its centre (a dome, not a flat-topped button, whose
     top would mirror a flash) and is crimson: red with little yellow (a* well above b*)."""

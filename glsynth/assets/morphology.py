@@ -48,7 +48,8 @@ NEUTRAL = {"melanin": 1.0, "melanin_add": 0.0, "blood": 1.0, "blood_add": 0.0, "
            "bilirubin": 0.0, "epidermis": 1.0, "scale": 0.0, "crust": 0.0, "crust_dark": 0.0, "height": 0.0,
            "gloss": 0.0, "detail": 1.0}
 SCALE_COLOURS = {"white": (236, 232, 226), "silvery": (214, 218, 222), "greasy": (205, 178, 120)}
-CRUST_COLOURS = {"honey": (196, 140, 58), "haemorrhagic": (88, 28, 24), "serous": (170, 120, 70)}
+CRUST_COLOURS = {"honey": (196, 140, 58), "haemorrhagic": (88, 28, 24), "serous": (170, 120, 70),
+                 "slough": (214, 196, 138)}
 OLD_CRUST = np.array([72, 36, 26]) / 255.0
 # blood volume fraction added where the epidermis is gone (Builder.erode): about that of
 # a florid erythema (Builder.erythema amount 2.5)
@@ -322,17 +323,19 @@ class Builder:
                                      value.reshape(n, n).astype(np.float32), i.reshape(n, n))
         return self._cell_cache[key]
 
-    def crust(self, w, coverage, colour="honey"):
-        """Dried exudate over ``w``: lumps whose colour darkens where they are thick or
-        old (``crust_dark``), granular and rough rather than a flat coat of paint."""
+    def crust(self, w, coverage, colour="honey", darken=1.0, lump_mm=None, thickness_mm=0.4):
+        """Dried exudate over ``w``: lumps (``lump_mm`` across, default a twentieth of
+        the grid) up to ``thickness_mm`` thick, whose colour darkens where they are thick
+        or old (``crust_dark``, scaled by ``darken``), granular and rough rather than a
+        flat coat of paint."""
         c = self.c
-        lumps = smoothstep(-0.3, 0.8, c.noise(c.extent * 0.05, 3))
+        lumps = smoothstep(-0.3, 0.8, c.noise(lump_mm or c.extent * 0.05, 3))
         grain = c.noise(max(0.12, c.extent * 0.008), 2)
         a = np.clip(w * coverage * lumps * (0.8 + 0.2 * smoothstep(-1, 1, grain)), 0, 1)
         self.f["crust"] = np.maximum(self.f["crust"], a)
         dark = np.clip(0.55 * lumps + 0.35 * c.noise(c.extent * 0.03, 2) + 0.15 * grain, 0, 1)
-        self.f["crust_dark"] = np.maximum(self.f["crust_dark"], a * dark)
-        self.f["height"] += 0.4 * a * (0.8 + 0.2 * grain)
+        self.f["crust_dark"] = np.maximum(self.f["crust_dark"], a * dark * darken)
+        self.f["height"] += thickness_mm * a * (0.8 + 0.2 * grain)
         self.f["gloss"] = np.maximum(self.f["gloss"], 0.3 * a * smoothstep(0.2, 0.9, 1 - dark))
         return CRUST_COLOURS[colour]
 
@@ -686,40 +689,71 @@ def _pityriasis_rosea(b, rng, R):
 
 
 def _ulcer(b, rng, R):
+    """An ulcer: epidermis and upper dermis lost down to a bed below the skin, reached by
+    a wall, its floor granulation tissue under patches of slough. Three kinds, as
+    photographed: venous (shallow, a sloping wall, round it haemosiderin staining in
+    patches), pressure or traumatic (deeper, its rim often macerated white) and
+    pyoderma gangrenosum (punched out, with a violaceous, undermined border).
+    Granulation is a cobblestone of moist domed granules a fraction of a millimetre to
+    a millimetre across (each a tuft of capillary loops: bright red on top, darker and
+    bluer in the clefts), in zones from beefy red to dusky maroon; slough is yellow-white
+    fibrin laid over the floor in patches, sometimes over most of it; some ulcers carry
+    black eschar."""
     c = b.c
-    sd = c.shape("round", R, aspect=rng.uniform(0.6, 1.0), irregular=0.2, warp=0.1)
+    kind = ("venous", "pressure", "pyoderma")[int(rng.choice(3, p=[0.45, 0.3, 0.25]))]
+    sd = c.shape("round", R, aspect=rng.uniform(0.6, 1.0), irregular=0.12, warp=0.06)
     w_peri = b.weight(sd + R * 0.25, R * 0.2, "ill-defined")
     bed = b.weight(sd, R * 0.05)
+    depth, slope = {"venous": (rng.uniform(0.3, 1.0), rng.uniform(0.15, 0.35)),
+                    "pressure": (rng.uniform(0.8, 2.5), rng.uniform(0.06, 0.2)),
+                    "pyoderma": (rng.uniform(1.0, 3.0), rng.uniform(0.02, 0.06))}[kind]
     b.erythema(w_peri, rng.uniform(0.4, 1.5))       # from a faint pink rim to cellulitis red
     # periwound darkening, in patches: a uniform 1.8x band left type VI skin a slate ring
     # (L* 14, chroma 10 round skin at 27 and 27), where dark skin round a real ulcer is a
     # few L* darker and keeps its colour
     patches = smoothstep(-1.0, 1.0, c.noise(R / 3, 2))
     b.f["melanin"] *= 1 + 0.5 * w_peri * (1 - bed) * (0.3 + 0.7 * patches)
-    b.erode(bed, rng.uniform(0.5, 2.0))
-    # granulation tissue: a cobblestone of round granules about a millimetre across
-    # (each a tuft of capillary loops: a bright red dome, darker and bluer in the clefts
-    # between), in zones of different age and perfusion, from beefy red to dusky maroon
-    wall, tuft, _ = b.cells(float(np.clip(R / 12, 0.6, 1.6)))
-    granule = smoothstep(0.0, 0.3, wall) * (0.6 + 0.4 * tuft)
+    if kind == "venous":      # haemosiderin from leaking venules: brown, blotchy, wider
+        stain = b.weight(sd + R * 0.6, R * 0.4, "ill-defined") * (1 - bed)
+        b.f["dermal_melanin"] += stain * smoothstep(-0.5, 1.0, c.noise(R / 2, 2)) * rng.uniform(0.002, 0.008)
+    if kind == "pyoderma":    # a raised dusky violet border over the undermined edge
+        border = smoothstep(R * rng.uniform(0.1, 0.25), 0.0, np.abs(sd + R * 0.05)) * (1 - bed)
+        b.erythema(border, rng.uniform(2.0, 3.5), oxygen=rng.uniform(0.4, 0.55))
+        b.f["height"] += 0.3 * border
+    b.erode(bed, 0.0)
+    floor = smoothstep(0.0, slope * R, sd)           # the wall down to the floor
+    b.f["height"] -= depth * floor
+    # granulation on the floor
+    cell = max(float(np.clip(R / 25, 0.3, 1.0)), 3 * c.px)
+    wall, tuft, _ = b.cells(cell)
+    granule = np.sqrt(smoothstep(0.0, 0.45, wall)) * (0.7 + 0.3 * tuft)
     dusky = smoothstep(-0.2, 1.2, c.noise(R / 2.5, 2)) * rng.uniform(0.3, 1.0)
-    b.f["blood_add"] += bed * (0.4 - ERODED_BLOOD + 0.15 * granule + 0.2 * dusky)
-    b.mix("oxygen", bed, 0.8 - 0.25 * (1 - granule) - 0.4 * dusky)
+    on_floor = bed * floor
+    b.f["blood_add"] += bed * (0.4 - ERODED_BLOOD + 0.2 * dusky) + on_floor * 0.3 * (granule - 0.5)
+    b.mix("oxygen", bed, 0.8 - 0.25 * (1 - granule * floor) - 0.4 * dusky)
     b.mix("scatter", bed, rng.uniform(0.15, 0.4))                        # new vessels, little collagen
-    b.f["height"] += bed * 0.2 * granule
+    b.f["height"] += on_floor * min(0.3 * cell, 0.25 * depth) * granule   # the floor stays below the skin
     # new epithelium creeping in from the edge: a pink, shiny band where the epidermis
     # is thin again and the granulation beneath shows through it
     margin = bed * (1 - smoothstep(0.0, rng.uniform(0.06, 0.2) * R, sd)) * rng.uniform(0.0, 1.0)
     b.mix("epidermis", margin, 0.35)
     b.f["blood_add"] -= margin * 0.3
-    sloughy = rng.uniform(-0.6, 0.8)                                    # how much of the bed
-    slough = smoothstep(sloughy, sloughy + 1.0, c.noise(R / 2.5, 2)) * bed
-    b.crust(slough, rng.uniform(0.4, 0.9), "serous")                    # yellow fibrin
+    if kind != "pyoderma" and rng.random() < 0.6:  # macerated: soggy white skin round the edge
+        rim = smoothstep(-R * rng.uniform(0.08, 0.2), -R * 0.01, sd) * (1 - bed)
+        soggy = rim * smoothstep(-0.8, 0.6, c.noise(R / 4, 2))
+        b.f["scale"] = np.maximum(b.f["scale"], rng.uniform(0.4, 0.75) * soggy)
+        b.f["detail"] *= 1 - 0.5 * soggy
+        b.f["gloss"] = np.maximum(b.f["gloss"], 0.3 * soggy)
+    sloughy = rng.uniform(-0.6, 0.8)                                    # how much of the floor
+    slough = smoothstep(sloughy, sloughy + 1.0, c.noise(R / 2.5, 2)) * on_floor
+    b.crust(slough, rng.uniform(0.6, 1.0), "slough", darken=0.3, lump_mm=R * 0.6,
+            thickness_mm=0.2 * depth)
+    b.f["gloss"] = np.maximum(b.f["gloss"], 0.6 * bed)                  # wet
     if rng.random() < 0.3:
-        eschar = smoothstep(0.8, 1.8, c.noise(R / 2, 2)) * bed
+        eschar = smoothstep(0.8, 1.8, c.noise(R / 2, 2)) * on_floor
         b.crust(eschar, 1.0, "haemorrhagic")
     b.outline(np.maximum(bed, 0.45 * w_peri), 0.4)
-    return {"crust_rgb": CRUST_COLOURS["serous"]}
+    return {"kind": kind, "crust_rgb": CRUST_COLOURS["slough"]}
 
 
 def _lupus(b, rng, R):
