@@ -354,13 +354,7 @@ class Builder:
 
 # ---- presets ------------------------------------------------------------------------------------
 def _size(rng, lo_mm, hi_mm):
-    """A condition's extent in its preset's range, skewed to the large end: clinical
-    collections photograph a condition's fuller presentations more than its first
-    millimetres (their close-ups are about 10 cm wide with the lesion a fifth of the
-    frame, where glsynth's, with extents log-uniform in these ranges, were 3.6 cm).
-    Log-uniform on the square root of a uniform draw: the median lies 71% of the way
-    up the range (in log), not half way."""
-    return float(np.exp(np.log(lo_mm) + np.sqrt(rng.uniform()) * np.log(hi_mm / lo_mm)))
+    return float(np.exp(rng.uniform(np.log(lo_mm), np.log(hi_mm))))
 
 
 def _nevus(b, rng, R):

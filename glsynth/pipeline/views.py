@@ -127,13 +127,8 @@ def _closeup_camera(lesion_sites, rng, v):
     to a small lesion shown with skin round it (which then fills less of the frame); a
     frame narrower than views.fov_deg covers from the nearest distance
     (views.closeup_w) is had by narrowing the field of view, as a phone's telephoto
-    lens or a crop does. The lesion is drawn with odds by its width (the square root
-    of its area): clinical collections photograph the larger lesions more, and their
-    close-ups are about 10 cm wide where ours, drawn evenly, were 3.6 cm at the median.
-    Returns (point, normal, direction, w, centre, fov_deg)."""
-    widths = np.sqrt([max(site.area, 0.0) for site in lesion_sites])
-    k = int(rng.choice(len(lesion_sites), p=widths / widths.sum())) if widths.sum() > 0 \
-        else int(rng.integers(len(lesion_sites)))
+    lens or a crop does. Returns (point, normal, direction, w, centre, fov_deg)."""
+    k = int(rng.integers(len(lesion_sites)))
     site = lesion_sites[k]
     frac = log_uniform(rng, v.closeup_fraction)
     width = max(np.sqrt(site.area / frac), log_uniform(rng, v.closeup_min_width))  # on the surface
