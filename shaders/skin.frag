@@ -162,6 +162,13 @@ vec3 to_srgb(vec3 c) {
     return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
 }
 
+// The unit normal of a surface (unit normal ng) raised by a height field whose gradient
+// is grad (world units per world unit; its part along ng is dropped).
+vec3 bumped(vec3 ng, vec3 grad) {
+    vec3 nd = ng - (grad - ng * dot(ng, grad));
+    return nd / max(length(nd), 1e-20);
+}
+
 void main() {
     vec3 b = surface_bary();
     vec2 uv = g_uv * b;
@@ -193,8 +200,7 @@ void main() {
     gloss = daux.b * dcol.a;
     vec2 dslope = (daux.xy * 255.0 - 128.0) / 127.0 * DECAL_SLOPE * dcol.a;
     grad += dslope.x * dax + dslope.y * day;
-    vec3 ns = ng - (grad - ng * dot(ng, grad));
-    n_shape = ns / max(length(ns), 1e-20);
+    n_shape = bumped(ng, grad);
 #endif
 #if DETAIL
     vec4 prm = texture(u_params, vec2(uv.x, 1.0 - uv.y)) * min(detail_weight, 1.0);
@@ -339,9 +345,7 @@ void main() {
     }
 #endif
 #endif
-    grad -= ng * dot(ng, grad);     // the surface gradient
-    vec3 nd = ng - grad;
-    n = nd / max(length(nd), 1e-20);
+    n = bumped(ng, grad);
     float roughness = mix(mix(u_roughness, 0.75 * u_roughness, oil), 0.2, gloss);
     float alpha = roughness * roughness;
     float a2 = alpha * alpha;
