@@ -280,3 +280,16 @@ class SkinInverse:
 @lru_cache(maxsize=1)
 def skin_inverse() -> SkinInverse:
     return SkinInverse()
+
+
+def melanin_slope(lab) -> np.ndarray:
+    """How a* and b* change per unit of L* where a skin colour (CIELAB) holds a little more
+    or less epidermal melanin, as (da*/dL*, db*/dL*) in the spectral model at the colour's
+    nearest (melanin, blood). Light skin with more melanin is darker and yellower
+    (db*/dL* about -1 at ITA 45); very dark skin darker and less chromatic (about +1)."""
+    inv = skin_inverse()
+    i = int(np.argmin(((inv.grid_lab - np.asarray(lab, np.float64)) ** 2).sum(-1)))
+    m, blood = inv.grid_mel[i], inv.grid_blood[i]
+    d = srgb_to_lab(skin_rgb(m * 1.1, blood)) - srgb_to_lab(skin_rgb(m / 1.1, blood))
+    d = np.asarray(d, np.float64).ravel()
+    return np.array([d[1] / d[0], d[2] / d[0]])

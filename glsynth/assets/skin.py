@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from .chromophores import melanin_slope
 from .colour import ita_range, lab_to_srgb
 
 log = logging.getLogger(__name__)
@@ -581,10 +582,16 @@ class _Painter:
         # melanin's variation is multiplicative: the same relative spread on dark skin is
         # fewer L* units (at full amplitude, L* 33 skin showed blotches like dirt)
         tone = float(np.clip(L0 / 60.0, 0.55, 1.0))
-        L = L0 + tone * (4.0 * low + 3.0 * mid)
-        a = (a0 + 3.0 * hue + 1.5 * mid
-             + vis * (3.0 * (uneven - 1.0) * np.clip(hue, 0, None) + 3.0 * uneven * np.clip(blotch, 0, None)))
-        b = b0 + 1.5 * low - 1.2 * hue
+        # melanin moves a* and b* with L* as the spectral model says for this skin: light
+        # skin with more melanin is darker and yellower, very dark skin darker and less
+        # chromatic. (L* and b* rising together, as until 2026-11-28, made the darker
+        # mottles of light skin grey-lilac: band-passed healthy skin had corr(L*, b*)
+        # +0.02 against the dev photographs' -0.21)
+        slope = np.array([1.0, *melanin_slope((L0, a0, b0))])
+        Lab = np.array([L0, a0, b0]) + (tone * (4.0 * low + 3.0 * mid))[:, None] * slope
+        L, a, b = Lab[:, 0], Lab[:, 1], Lab[:, 2]
+        a += 3.0 * hue + vis * (3.0 * (uneven - 1.0) * np.clip(hue, 0, None) + 3.0 * uneven * np.clip(blotch, 0, None))
+        b -= 1.2 * hue
         # mottling at the scale of millimetres (per texel): uneven melanin and the
         # superficial vascular plexus showing through, what makes real skin up close
         # anything but an even colour. Against the dev photographs (skin 40-80 px from a
@@ -595,7 +602,8 @@ class _Painter:
         blood = nz.fbm(p - 57.0, 140.0, 3)
         L += tone * 7.0 * melanin - 1.8 * vis * np.clip(blood, 0, None)
         a += 5.0 * vis * blood + 5.0 * (np.sqrt(uneven) - 1.0) * vis * np.clip(blood, 0, None)
-        b += tone * 3.5 * melanin
+        a += slope[1] * tone * 7.0 * melanin
+        b += slope[2] * tone * 7.0 * melanin
         # pores / fine grain per texel, scaled to the texel footprint
         fine = nz(p, 0.45 / self.texel_m)
         pores = _smoothstep(0.45, 0.9, nz(p + 3.0, 0.3 / self.texel_m))
@@ -617,8 +625,10 @@ class _Painter:
         if old > 0:
             sun = self._photoageing()
             spots = _smoothstep(0.42, 0.6, nz.fbm(p + 23.0, 90.0, 2)) * sun
-            L -= (6.0 - 3.0 * dark) * spots + 2.5 * sun * np.abs(melanin)
-            b += 4.0 * spots
+            uneven_pigment = 2.5 * sun * np.abs(melanin)
+            L -= (6.0 - 3.0 * dark) * spots + uneven_pigment
+            b += 4.0 * spots - slope[2] * uneven_pigment
+            a -= slope[1] * uneven_pigment
             a += 1.5 * spots + 3.0 * vis * old * tx.ch["head"] * np.clip(blood, 0, None)
         # redness: a vertex field (radii >= 9 mm), interpolated
         pv = self.v
