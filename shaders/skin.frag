@@ -122,23 +122,32 @@ float value_noise(vec2 p) {
 }
 
 // Brightness of scalp hair strands (mean 0) at hair-flow point st (s along the hairs,
-// t across, metres) for a pixel footprint of px metres: single hairs (70 um), bundles
-// and locks, each octave faded out before a pixel spans its width, so that a far view
-// keeps the texture's colour. Straight hair runs 40 widths along the flow before it
-// changes; coily hair (u_hair_curl 1) is a mat of short, bent strands.
-float scalp_strands(vec2 st, float px) {
+// t across, metres) for a pixel footprint of px metres: single hairs (70 um), bundles,
+// locks, and clumps of 3 and 10 mm (curls and the locks that hair falls in, with deep
+// shade between them: what makes a head of hair textured from a metre away, where a
+// model trained on smooth hair called real hair skin), each octave faded out before a
+// pixel spans its width, so that a far view keeps the texture's colour. Straight hair
+// runs 40 widths along the flow before it changes; coily hair (u_hair_curl 1) is a mat
+// of short, bent strands. Where the hair-flow coordinates stretch by ``stretched``
+// (the cylinder they come from turns away from the skull's dome: ~2-3 over most of a
+// scalp, more at the crown) single hairs would be drawn that much too long, so they
+// fade out from 1.5; a lock or clump drawn a few times longer or narrower is still
+// one, so those keep to 4.
+const float STRAND_AMP[5] = float[5](0.55, 0.385, 0.27, 0.45, 0.3);
+float scalp_strands(vec2 st, float px, float stretched) {
+    float keep_fine = 1.0 - smoothstep(1.5, 3.0, stretched);
+    float keep_clumps = 1.0 - smoothstep(4.0, 8.0, stretched);
     float stretch = mix(40.0, 1.5, u_hair_curl);
     float bend = mix(0.0005, 0.0003, u_hair_curl);       // lateral wander (m)
     float wave = mix(0.008, 0.002, u_hair_curl);         // over this length (m)
     float t = st.y + bend * value_noise(vec2(st.y / 0.002, st.x / wave));
     float v = 0.0;
-    float width = 0.00007, amp = 0.55;
-    for (int k = 0; k < 3; ++k) {
-        float fade = 1.0 - smoothstep(0.4, 1.0, px / width);
+    float width = 0.00007;
+    for (int k = 0; k < 5; ++k) {
+        float fade = (1.0 - smoothstep(0.4, 1.0, px / width)) * (k < 3 ? keep_fine : keep_clumps);
         if (fade > 0.0)
-            v += fade * amp * value_noise(vec2(t / width, st.x / (stretch * width)) + 17.0 * float(k));
+            v += fade * STRAND_AMP[k] * value_noise(vec2(t / width, st.x / (stretch * width)) + 17.0 * float(k));
         width *= 3.5;
-        amp *= 0.7;
     }
     return v;
 }
@@ -311,11 +320,11 @@ void main() {
         float dl = length(down);
         mass_fibre = mix(fibre_dir, down / max(dl, 1e-20), smoothstep(0.15, 0.4, dl));
         mass_fibre /= max(length(mass_fibre), 1e-20);
-        // no strands where the hair-flow coordinates stretch (the crown): there a unit
-        // of them covers several of surface
+        // how much the hair-flow coordinates stretch here (a unit of them covers
+        // that many of surface, or a fraction)
         float ls = length(t_s), lt = length(t_t);
         float stretched = max(max(ls, lt), 1.0 / max(min(ls, lt), 1e-20));
-        strands = (1.0 - smoothstep(1.5, 3.0, stretched)) * scalp_strands(hc / u_unit, footprint / u_unit);
+        strands = scalp_strands(hc / u_unit, footprint / u_unit, stretched);
     }
     // wrinkles: the crease tile's grooves run along its x, laid along t (across the hair
     // flow: around a limb, across the forehead and neck). Fine ones where the relief
@@ -405,7 +414,9 @@ void main() {
     if (scalp > 0.0) {   // dark gaps between strands, glints along the bright ones
         vec3 mass = albedo * max(1.0 + 1.6 * strands, 0.1) * mass_light
                     + 0.4 * mass_spec * clamp(1.0 + 3.0 * strands, 0.0, 3.0);
-        colour = mix(colour, mass, scalp);
+        // the hairline breaks up into the strands and clumps that end there (the
+        // painted coverage fades over millimetres; labels keep it)
+        colour = mix(colour, mass, clamp(scalp + 3.0 * scalp * (1.0 - scalp) * strands, 0.0, 1.0));
     }
     vec3 hair_albedo = to_linear(u_hair_rgb);
     vec3 vellus_albedo = mix(albedo, hair_albedo, 0.3) * 1.15;   // fine, partly translucent
