@@ -812,6 +812,27 @@ def test_discoid_lupus_has_a_scaly_dark_rim_around_a_pale_scar_with_plugs(rng):
         assert np.median(lum[rim]) < np.percentile(lum[scar], 75) - 10
 
 
+def test_vessel_trees_fork_and_taper_and_cover_their_drawn_area(rng):
+    """A vessel tree of depth d covers the summed area of its tapering branches, w L (1 +
+    2 0.65 0.75 + ...), within its round joints' overlap, also where vessels are narrower
+    than a cell (drawn fainter); an unbranched vessel is its full width from its start;
+    it stays in 0..1."""
+    from glsynth.assets import morphology as M
+    for width, cells in ((0.3, 1024), (0.3, 96)):
+        c = M.Canvas(np.random.default_rng(int(rng.integers(2 ** 31))), cells, 40.0)
+        heading = rng.uniform(0, 2 * np.pi)
+        start = -6.0 * np.array([np.cos(heading), np.sin(heading)])
+        cov = M.vessel_tree(c, [start], [heading], width, 12.0, depth=3)
+        assert np.isfinite(cov).all() and cov.min() >= 0 and cov.max() <= 1 + 1e-6
+        expected = width * 12.0 * sum((2 * 0.65 * 0.75) ** k for k in range(4))
+        area = cov.sum() * c.px ** 2
+        assert 0.7 * expected < area < 1.1 * expected, (cells, area, expected)
+        if cells == 1024:   # an unbranched vessel's first millimetre is its full width
+            cov = M.vessel_tree(c, [start], [heading], width, 12.0, depth=0)
+            near = np.hypot(c.x - start[0], c.y - start[1]) < 1.0
+            assert 0.8 * width < cov[near].sum() * c.px ** 2 < 1.3 * width
+
+
 def test_nodular_bcc_is_a_smooth_pearly_dome_with_a_rolled_border(rng):
     """A nodular BCC stands highest at its rolled border (a slight central dell), has
     lost the skin's markings, is only softly glossy, and is pale pink rather than dark

@@ -195,6 +195,49 @@ def spots(canvas, centres, radii, irregular=0.15, reach=3.0):
     return np.maximum(sd, -reach * float(np.max(radii))), index
 
 
+def vessel_tree(canvas, starts, headings, width_mm, length_mm, depth=3):
+    """Coverage (0..1) of branching vessels: from each start (mm) along its heading
+    (radians) a vessel ``width_mm`` wide runs ``length_mm`` in three bent steps, then
+    forks in two at 25-50 degrees, each branch 0.65 as wide and 0.75 as long, ``depth``
+    times: thick trunks tapering to capillaries, as the arborising vessels on a basal
+    cell carcinoma are. Each step is drawn on its own window of the grid; a vessel
+    narrower than a cell is drawn a cell wide and fainter in proportion."""
+    c = canvas
+    out = np.zeros((c.size, c.size), np.float32)
+    todo = [(np.asarray(p, np.float64), float(h), float(width_mm), float(length_mm), 0)
+            for p, h in zip(starts, headings)]
+    while todo:
+        p, h, w, length, k = todo.pop()
+        for _ in range(3):
+            h += c.rng.normal(0.0, 0.35)
+            q = p + length / 3 * np.array([np.cos(h), np.sin(h)])
+            _draw_segment(c, out, p, q, w)
+            p = q
+        if k < depth:
+            for side in (-1.0, 1.0):
+                todo.append((p, h + side * c.rng.uniform(0.45, 0.9), 0.65 * w, 0.75 * length, k + 1))
+    return out
+
+
+def _draw_segment(c, out, p, q, width):
+    """Draw the segment p-q (mm) ``width`` wide into ``out`` (max), anti-aliased."""
+    half = max(width, c.px) / 2
+    strength = min(1.0, width / c.px)
+    lo, hi = np.minimum(p, q) - half - 2 * c.px, np.maximum(p, q) + half + 2 * c.px
+    c0, c1 = (np.array([lo[0], hi[0]]) / c.extent + 0.5) * c.size
+    r0, r1 = (np.array([lo[1], hi[1]]) / c.extent + 0.5) * c.size
+    c0, r0 = max(int(c0), 0), max(int(r0), 0)
+    c1, r1 = min(int(c1) + 2, c.size), min(int(r1) + 2, c.size)
+    if c0 >= c1 or r0 >= r1:
+        return
+    x, y = c.x[r0:r1, c0:c1] - p[0], c.y[r0:r1, c0:c1] - p[1]
+    d = q - p
+    t = np.clip((x * d[0] + y * d[1]) / max(float(d @ d), 1e-12), 0.0, 1.0)
+    dist = np.hypot(x - t * d[0], y - t * d[1])
+    cov = strength * smoothstep(half + 0.5 * c.px, half - 0.5 * c.px, dist)
+    np.maximum(out[r0:r1, c0:c1], cov, out=out[r0:r1, c0:c1])
+
+
 def arrange(canvas, kind, n, spread_mm, min_gap_mm):
     """Centres (mm) of ``n`` lesions: grouped (a cluster), satellite (one big, small ones
     around), dermatomal (a band), widespread (over the whole grid)."""
@@ -515,10 +558,15 @@ def _bcc(b, rng, R):
     sd = c.shape("round", R, aspect=rng.uniform(0.6 if superficial else 0.75, 1.0),
                  irregular=0.2 if superficial else 0.08, warp=0.1 if superficial else 0.04)
     w = b.weight(sd, R * 0.1)
-    # fine, branching vessels: the zero lines of two noises, thinner where they branch off
-    trunk = 1 - smoothstep(0.0, 0.06, np.abs(c.noise(R / 2.5, 2)))
-    branch = (1 - smoothstep(0.0, 0.05, np.abs(c.noise(R / 6, 2)))) * smoothstep(0.0, 0.8, c.noise(R / 3, 1))
-    vessels = np.maximum(trunk, 0.7 * branch) * w
+    # arborising vessels: a few trunks from near the edge across the top, forking and
+    # tapering (until 2026-11-28 the zero lines of a noise: even-width meanders, a map's
+    # rivers, that read as cracks)
+    n = int(rng.integers(2, 6))
+    around = rng.uniform(0, 2 * np.pi) + np.arange(n) * 2 * np.pi / n + rng.normal(0, 0.3, n)
+    starts = R * rng.uniform(0.55, 0.85, (n, 1)) * np.stack([np.cos(around), np.sin(around)], 1)
+    vessels = vessel_tree(c, starts, around + np.pi + rng.normal(0, 0.5, n),
+                          rng.uniform(0.06, 0.12) if superficial else rng.uniform(0.1, 0.2),
+                          R * rng.uniform(0.3, 0.5)) * w
     if superficial:
         b.erythema(w * (0.75 + 0.25 * c.noise(R / 3, 2)), rng.uniform(1.0, 2.0))
         thread = smoothstep(max(0.3, 1.5 * c.px), 0.0, np.abs(sd - R * 0.04)) * w
