@@ -971,11 +971,15 @@ def _porokeratosis(b, rng, R):
     raised keratotic ridge (the cornoid lamella, brownish) round a slightly atrophic,
     pale or pink-brown centre, on sun-damaged skin."""
     c = b.c
-    for p in arrange(c, "widespread", int(rng.integers(10, 35)), R, R * 0.08):
-        r = rng.uniform(1.5, 5.0)
+    # mostly apart, some touching (with the old gap of 0.08 R, close-ups showed crowds of
+    # overlapping rings, a stained-glass window)
+    for p in arrange(c, "widespread", int(rng.integers(10, 35)), R, max(R * 0.08, 7.0)):
+        r = rng.uniform(1.5, 4.5)
         sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.7, 1.0), irregular=0.15, warp=0.1)
         disc = b.weight(sd, r * 0.1)
-        ridge = smoothstep(max(0.35, 1.5 * c.px), 0.0, np.abs(sd))       # a ~0.4 mm thread
+        # the cornoid lamella: a thread ~0.3 mm wide, brown (0.7 mm and 2.6x the melanin
+        # drew a bold dark outline round each ring up close)
+        ridge = smoothstep(max(0.15, 1.5 * c.px), 0.0, np.abs(sd))
         inner = smoothstep(0.0, r * 0.3, sd)
         b.f["detail"] *= 1 - 0.5 * inner
         if rng.random() < 0.5:
@@ -983,7 +987,7 @@ def _porokeratosis(b, rng, R):
             b.erythema(inner, 0.8)
         else:
             b.mix("melanin", inner, 0.7)                                 # pale centre
-        b.f["melanin"] *= 1 + 1.6 * ridge
+        b.f["melanin"] *= 1 + 1.0 * ridge
         b.f["height"] += 0.15 * ridge
         b.f["scale"] = np.maximum(b.f["scale"], 0.55 * ridge)
         b.outline(disc, 0.4)
