@@ -588,8 +588,14 @@ class _Painter:
         # mottles of light skin grey-lilac: band-passed healthy skin had corr(L*, b*)
         # +0.02 against the dev photographs' -0.21)
         slope = np.array([1.0, *melanin_slope((L0, a0, b0))])
-        Lab = np.array([L0, a0, b0]) + (tone * (4.0 * low + 3.0 * mid))[:, None] * slope
-        L, a, b = Lab[:, 0], Lab[:, 1], Lab[:, 2]
+        Lab = np.tile(np.array([L0, a0, b0]), (len(low), 1))
+        L, a, b = Lab.T          # views: adding to them changes Lab, and the other way round
+
+        def add_melanin(dL):
+            """More (dL < 0) or less melanin per texel, as the change of L* it makes."""
+            Lab[:] += np.asarray(dL)[:, None] * slope
+
+        add_melanin(tone * (4.0 * low + 3.0 * mid))
         a += 3.0 * hue + vis * (3.0 * (uneven - 1.0) * np.clip(hue, 0, None) + 3.0 * uneven * np.clip(blotch, 0, None))
         b -= 1.2 * hue
         # mottling at the scale of millimetres (per texel): uneven melanin and the
@@ -600,10 +606,9 @@ class _Painter:
         # as with the centimetre blotches at 7 it read as a rash in regional views
         melanin = nz.fbm(p + 41.0, 110.0, 3)
         blood = nz.fbm(p - 57.0, 140.0, 3)
-        L += tone * 7.0 * melanin - 1.8 * vis * np.clip(blood, 0, None)
+        add_melanin(tone * 7.0 * melanin)
+        L -= 1.8 * vis * np.clip(blood, 0, None)
         a += 5.0 * vis * blood + 5.0 * (np.sqrt(uneven) - 1.0) * vis * np.clip(blood, 0, None)
-        a += slope[1] * tone * 7.0 * melanin
-        b += slope[2] * tone * 7.0 * melanin
         # pores / fine grain per texel, scaled to the texel footprint
         fine = nz(p, 0.45 / self.texel_m)
         pores = _smoothstep(0.45, 0.9, nz(p + 3.0, 0.3 / self.texel_m))
@@ -625,10 +630,9 @@ class _Painter:
         if old > 0:
             sun = self._photoageing()
             spots = _smoothstep(0.42, 0.6, nz.fbm(p + 23.0, 90.0, 2)) * sun
-            uneven_pigment = 2.5 * sun * np.abs(melanin)
-            L -= (6.0 - 3.0 * dark) * spots + uneven_pigment
-            b += 4.0 * spots - slope[2] * uneven_pigment
-            a -= slope[1] * uneven_pigment
+            add_melanin(-2.5 * sun * np.abs(melanin))                  # uneven pigment
+            L -= (6.0 - 3.0 * dark) * spots
+            b += 4.0 * spots
             a += 1.5 * spots + 3.0 * vis * old * tx.ch["head"] * np.clip(blood, 0, None)
         # redness: a vertex field (radii >= 9 mm), interpolated
         pv = self.v
