@@ -135,16 +135,20 @@ def test_scalp_hair_shows_strands_up_close_and_none_far_away(renderer, rng):
     scalp[:, :size // 2] = 255                         # u < 0.5 (x < 0): scalp hair
     no_weight = np.zeros((size, size), np.uint8)
     mesh = _skin_plane(rng, weight=no_weight, tex_size=size, scalp=scalp)
-    cam = _look_down(renderer, 0.015, x=0.0)         # 0.06 mm per pixel
-    lights = [PointLight(np.asarray(cam.eye) + [0.01, 0.015, 0], ambient=0.25, diffuse=0.9)]
-    out = renderer.render(mesh, cam, passes=("rgb", "gbuffer"), lights=lights,
-                          material=Material(model="skin"))
-    lum = out["rgb"].mean(-1)
-    u = out["uv"][..., 0]
-    hair = (u < 0.5 - 4 / size) & (out["face_id"] >= 0)
-    cloth = (u > 0.5 + 4 / size) & (out["face_id"] >= 0)
-    gx, gy = np.abs(np.diff(lum, axis=1))[:-1, :], np.abs(np.diff(lum, axis=0))[:, :-1]
-    h, c = hair[:-1, :-1], cloth[:-1, :-1]
+
+    def gradients(w, light_offset):
+        """|d lum/dx| and |d lum/dy| seen from w, and the hair and hairless pixels."""
+        cam = _look_down(renderer, w, x=0.0)
+        lights = [PointLight(np.asarray(cam.eye) + light_offset, ambient=0.25, diffuse=0.9)]
+        out = renderer.render(mesh, cam, passes=("rgb", "gbuffer"), lights=lights,
+                              material=Material(model="skin"))
+        lum, u = out["rgb"].mean(-1), out["uv"][..., 0]
+        hair = (u < 0.5 - 4 / size) & (out["face_id"] >= 0)
+        cloth = (u > 0.5 + 4 / size) & (out["face_id"] >= 0)
+        gx, gy = np.abs(np.diff(lum, axis=1))[:-1, :], np.abs(np.diff(lum, axis=0))[:, :-1]
+        return gx, gy, hair[:-1, :-1], cloth[:-1, :-1]
+
+    gx, gy, h, c = gradients(0.015, [0.01, 0.015, 0])   # 0.06 mm per pixel
     assert h.sum() > 1000 and c.sum() > 1000
     assert (gx + gy)[h].mean() > 5 * (gx + gy)[c].mean() and (gx + gy)[h].mean() > 0.005
     assert gy[h].mean() > 2 * gx[h].mean()             # strands lie along x
@@ -152,15 +156,8 @@ def test_scalp_hair_shows_strands_up_close_and_none_far_away(renderer, rng):
     # but clumps and locks of hair keep the mass textured (smooth hair taught a model to
     # call real hair skin)
     w = 0.8e-3 * renderer.width / (2 * np.tan(np.radians(15)))
-    cam = _look_down(renderer, w, x=0.0)
-    lights = [PointLight(np.asarray(cam.eye) + [0.6 * w, w, 0], ambient=0.25, diffuse=0.9)]
-    out = renderer.render(mesh, cam, passes=("rgb", "gbuffer"), lights=lights,
-                          material=Material(model="skin"))
-    lum, u = out["rgb"].mean(-1), out["uv"][..., 0]
-    hair = (u < 0.5 - 4 / size) & (out["face_id"] >= 0)
-    cloth = (u > 0.5 + 4 / size) & (out["face_id"] >= 0)
-    grad = np.abs(np.diff(lum, axis=1))[:-1, :] + np.abs(np.diff(lum, axis=0))[:, :-1]
-    h, c = hair[:-1, :-1], cloth[:-1, :-1]
+    gx, gy, h, c = gradients(w, [0.6 * w, w, 0])
+    grad = gx + gy
     assert h.sum() > 500 and c.sum() > 500
     assert grad[h].mean() > 3 * grad[c].mean() and grad[h].mean() > 0.004, (grad[h].mean(), grad[c].mean())
     for w in (3.0, 8.0):
