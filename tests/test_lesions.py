@@ -813,10 +813,11 @@ def test_discoid_lupus_has_a_scaly_dark_rim_around_a_pale_scar_with_plugs(rng):
 
 
 def test_vessel_trees_fork_and_taper_and_cover_their_drawn_area(rng):
-    """A vessel tree of depth d covers the summed area of its tapering branches, w L (1 +
-    2 0.65 0.75 + ...), within its round joints' overlap, also where vessels are narrower
-    than a cell (drawn fainter); an unbranched vessel is its full width from its start;
-    it stays in 0..1."""
+    """An unbranched vessel covers w L (plus its round ends), also where it is narrower
+    than a cell (drawn fainter), and is its full width from its start. A tree of depth d
+    covers at most the summed area of its tapering branches, w L (1 + 2 0.65 0.75 + ...),
+    and at least 0.6 of it: branches may cross and share cells (0.67-1.00 over 800
+    draws). Coverage stays in 0..1."""
     from glsynth.assets import morphology as M
     for width, cells in ((0.3, 1024), (0.3, 96)):
         c = M.Canvas(np.random.default_rng(int(rng.integers(2 ** 31))), cells, 40.0)
@@ -826,9 +827,10 @@ def test_vessel_trees_fork_and_taper_and_cover_their_drawn_area(rng):
         assert np.isfinite(cov).all() and cov.min() >= 0 and cov.max() <= 1 + 1e-6
         expected = width * 12.0 * sum((2 * 0.65 * 0.75) ** k for k in range(4))
         area = cov.sum() * c.px ** 2
-        assert 0.7 * expected < area < 1.1 * expected, (cells, area, expected)
+        assert 0.6 * expected < area < 1.1 * expected, (cells, area, expected)
+        cov = M.vessel_tree(c, [start], [heading], width, 12.0, depth=0)
+        assert 0.97 * width * 12.0 < cov.sum() * c.px ** 2 < 1.08 * width * 12.0, (cells, cov.sum() * c.px ** 2)
         if cells == 1024:   # an unbranched vessel's first millimetre is its full width
-            cov = M.vessel_tree(c, [start], [heading], width, 12.0, depth=0)
             near = np.hypot(c.x - start[0], c.y - start[1]) < 1.0
             assert 0.8 * width < cov[near].sum() * c.px ** 2 < 1.3 * width
 
