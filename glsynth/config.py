@@ -279,6 +279,9 @@ class ViewsConfig:
                         "distance, as sampled at the viewed point; the paper's do not")
     flash_diffuse: list = key([0.3, 1.0], "flash: diffuse intensity", pair=_LIGHT)
     flash_specular: list = key([0.0, 0.1], "flash: specular intensity", pair=_LIGHT)
+    flash_corner: list = key([0.25, 1.0], "flash: its beam's intensity toward the frame's corners "
+                             "relative to the middle (a phone's LED flash about 0.3-0.6, a "
+                             "diffused or ring flash 1: even)", pair=between(0.01, 1))
     flash_room: list = key([0.05, 1.0], "flash: the room light's intensity when the flash fires, "
                            "relative to its own draw (the camera exposes for the flash: a phone "
                            "in a lit room 1-2 stops under, a clinical macro flash at f/8-16 "

@@ -24,6 +24,11 @@ class PointLight:
     with the inverse square of the distance (``falloff_gain``), so a flash lights a
     limb's near side more than the sides turning away from it.
 
+    ``beam_exponent`` 0 (the paper's) sends light alike in every direction; above 0 the
+    direct terms are also scaled by ``cos(angle off beam_axis)^beam_exponent``
+    (``beam_gain``), the beam of a phone's LED flash, brighter in the middle of the
+    frame than at its corners.
+
     ``ambient_ground`` 1 (the paper's) is ambient light alike from every direction;
     below 1 it is a room's: a surface facing down (-Y, the floor) gets that share of
     what one facing up (+Y, the ceiling) gets, in between by its normal, keeping
@@ -35,6 +40,8 @@ class PointLight:
     specular: tuple = (0.025, 0.025, 0.025)
     falloff_distance: float = 0.0
     ambient_ground: float = 1.0
+    beam_axis: tuple = (0.0, 0.0, -1.0)
+    beam_exponent: float = 0.0
 
     def __post_init__(self):
         p = np.asarray(self.position, dtype=np.float64).reshape(3)
@@ -51,6 +58,20 @@ class PointLight:
         if not (np.isfinite(g) and 0 <= g <= 1):
             raise ValueError(f"light ambient_ground must be in [0, 1], got {self.ambient_ground}")
         object.__setattr__(self, "ambient_ground", g)
+        k = float(self.beam_exponent)
+        if not (np.isfinite(k) and k >= 0):
+            raise ValueError(f"light beam_exponent must be finite and >= 0, got {self.beam_exponent}")
+        object.__setattr__(self, "beam_exponent", k)
+        axis = np.asarray(self.beam_axis, dtype=np.float64).reshape(3)
+        norm = np.linalg.norm(axis)
+        if not (np.isfinite(axis).all() and norm > 0):
+            raise ValueError(f"light beam_axis must be a finite non-zero vector, got {axis.tolist()}")
+        object.__setattr__(self, "beam_axis", tuple((axis / norm).tolist()))
+
+    @property
+    def beam(self):
+        """(axis x, y, z, exponent), as the shaders take it."""
+        return self.beam_axis + (self.beam_exponent,)
 
     def to_dict(self):
         out = {"position": list(self.position), "ambient": list(self.ambient),
@@ -59,6 +80,8 @@ class PointLight:
             out["falloff_distance"] = self.falloff_distance
         if self.ambient_ground < 1:
             out["ambient_ground"] = self.ambient_ground
+        if self.beam_exponent > 0:
+            out.update(beam_axis=list(self.beam_axis), beam_exponent=self.beam_exponent)
         return out
 
 
@@ -84,6 +107,28 @@ def falloff_gain(distance, falloff_distance):
     if falloff_distance <= 0:
         return 1.0
     return (falloff_distance / distance.clip(min=FALLOFF_NEAREST * falloff_distance)) ** 2
+
+
+def beam_gain(to_light, light):
+    """``cos(angle between the light's beam_axis and the ray from the light)`` raised to
+    its ``beam_exponent`` (a cosine below 1e-6 counts as 1e-6); 1 when the exponent is 0.
+    ``to_light``: (..., 3) torch tensor from the surface to the light; returns (..., 1)."""
+    if light.beam_exponent <= 0:
+        return 1.0
+    axis = to_light.new_tensor(light.beam_axis)
+    cos = -(to_light * axis).sum(-1, keepdim=True) / to_light.norm(dim=-1, keepdim=True).clamp(min=1e-20)
+    return cos.clamp(min=1e-6) ** light.beam_exponent
+
+
+def beam_exponent_for(corner_ratio, corner_angle_deg):
+    """The beam exponent that lights a direction ``corner_angle_deg`` off the axis with
+    ``corner_ratio`` (0-1] of the axis's intensity (a flash's fall-off to the frame's
+    corners): ln(ratio) / ln(cos(angle))."""
+    if not 0 < corner_ratio <= 1:
+        raise ValueError(f"beam corner ratio must be in (0, 1], got {corner_ratio}")
+    if not 0 < corner_angle_deg < 90:
+        raise ValueError(f"beam corner angle must be in (0, 90) degrees, got {corner_angle_deg}")
+    return float(np.log(corner_ratio) / np.log(np.cos(np.radians(corner_angle_deg))))
 
 
 MODELS = ("phong", "skin")

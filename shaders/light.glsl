@@ -12,3 +12,11 @@ float falloff_gain(float dist, float d0) {
 float ambient_gain(float up, float ground) {
     return (ground + (1.0 - ground) * (0.5 + 0.5 * up)) * (2.0 / (1.0 + ground));
 }
+
+// Beam of a spot-like light (glsynth.lighting.beam_gain): cos(angle between the ray from
+// the light and beam.xyz)^beam.w, the cosine floored at 1e-6; 1 when beam.w is 0.
+float beam_gain(vec3 to_light, vec4 beam) {
+    if (beam.w <= 0.0) return 1.0;
+    float c = max(-dot(to_light, beam.xyz) / max(length(to_light), 1e-20), 1e-6);
+    return pow(c, beam.w);
+}

@@ -30,6 +30,7 @@ uniform vec3 u_light_ambient[NUM_LIGHTS];
 uniform vec3 u_light_diffuse[NUM_LIGHTS];
 uniform vec3 u_light_specular[NUM_LIGHTS];
 uniform float u_light_falloff[NUM_LIGHTS];   // PointLight.falloff_distance (0: none)
+uniform vec4 u_light_beam[NUM_LIGHTS];       // PointLight.beam: axis, exponent (0: none)
 uniform float u_light_ground[NUM_LIGHTS];    // PointLight.ambient_ground (1: even)
 uniform vec3 u_mat_specular;
 uniform float u_shininess;
@@ -75,7 +76,7 @@ void main() {
 #else
         float vis = 1.0;
 #endif
-        vis *= falloff_gain(length(to_light), u_light_falloff[i]);
+        vis *= falloff_gain(length(to_light), u_light_falloff[i]) * beam_gain(to_light, u_light_beam[i]);
         light_sum += u_light_ambient[i] * ambient_gain(n.y, u_light_ground[i])
                    + vis * u_light_diffuse[i] * max((cos_nl + u_wrap) / (1.0 + u_wrap), 0.0);
         if (cos_nl > 0.0) {

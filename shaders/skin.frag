@@ -46,6 +46,7 @@ uniform vec3 u_light_pos[NUM_LIGHTS];
 uniform vec3 u_light_ambient[NUM_LIGHTS];
 uniform vec3 u_light_diffuse[NUM_LIGHTS];
 uniform float u_light_falloff[NUM_LIGHTS];   // PointLight.falloff_distance (0: none)
+uniform vec4 u_light_beam[NUM_LIGHTS];       // PointLight.beam: axis, exponent (0: none)
 uniform float u_light_ground[NUM_LIGHTS];    // PointLight.ambient_ground (1: even)
 uniform float u_roughness;         // GGX roughness of dry skin (alpha = roughness^2)
 uniform float u_oil;               // 0..1, scales the oiliness map
@@ -375,7 +376,7 @@ void main() {
 #else
         float vis = 1.0;
 #endif
-        vis *= falloff_gain(length(to_light), u_light_falloff[i]);
+        vis *= falloff_gain(length(to_light), u_light_falloff[i]) * beam_gain(to_light, u_light_beam[i]);
         float nl_detail = dot(n, l);
         float nl_geo = dot(n_shape, l);
         vec3 nl = mix(vec3(nl_detail), vec3(nl_geo), vec3(0.6, 0.3, 0.15));

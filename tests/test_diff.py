@@ -22,7 +22,9 @@ def _random_lights(rng, cam, n):
         p = eye + rng.normal(scale=0.3, size=3)
         out.append(PointLight(p, ambient=rng.uniform(0, 0.99, 3), diffuse=rng.uniform(0.2, 0.99, 3),
                               specular=rng.uniform(0, 0.5, 3), falloff_distance=_falloff(rng, p),
-                              ambient_ground=rng.choice([1.0, rng.uniform(0, 1)])))
+                              ambient_ground=rng.choice([1.0, rng.uniform(0, 1)]),
+                              beam_axis=np.asarray(cam.target) - p,   # a flash's beam, or none
+                              beam_exponent=rng.choice([0.0, rng.uniform(0.5, 30)])))
     return out
 
 
@@ -44,7 +46,7 @@ def test_torch_shading_matches_gl(renderer, rng, trial):
 def test_flash_falls_off_with_the_inverse_square(renderer, rng, model):
     # a flash at height h over a plane: a point r from it gets cos = h / r of the light
     # and (d0 / r)^2 of its intensity; a flash almost on the plane is capped at
-    # (1 / FALLOFF_NEAREST)^2 = 16 times
+    # (1 / FALLOFF_NEAREST)^2 = 16 times; its beam (straight down) gives (h / r)^k more
     from glsynth.lighting import FALLOFF_NEAREST
     mesh = plane(rng, size=4.0).copy_with(texture=np.full((8, 8, 3), 128, np.uint8))
     h = rng.uniform(0.05, 0.5)
@@ -52,13 +54,15 @@ def test_flash_falls_off_with_the_inverse_square(renderer, rng, model):
     cam = gs.Camera.look_at((0, 0, h), (0, 0, 0), up=(0, 1, 0), width=renderer.width,
                             height=renderer.height, fov_deg=rng.uniform(60, 100))
     e = 0.6 / (d0 / max(h, FALLOFF_NEAREST * d0)) ** 2        # at most 0.6 at the centre
-    lights = [PointLight(cam.eye, ambient=0.0, diffuse=e, specular=0.0, falloff_distance=d0)]
+    k = rng.choice([0.0, rng.uniform(1, 20)])
+    lights = [PointLight(cam.eye, ambient=0.0, diffuse=e, specular=0.0, falloff_distance=d0,
+                         beam_axis=(0, 0, -1), beam_exponent=k)]
     mat = Material(specular=0.0) if model == "phong" else Material(model="skin", roughness=1.0, detail=False)
     out = renderer.render(mesh, cam, passes=("gbuffer", "rgb"), lights=lights, material=mat)
     fg = out["face_id"] >= 0
     corners = mesh.vertices[mesh.faces[np.maximum(out["face_id"], 0)]]
     r = np.linalg.norm(np.einsum("hwk,hwkc->hwc", out["bary"], corners) - np.array([0, 0, h]), axis=-1)
-    want = e * (h / r) * (d0 / np.maximum(r, FALLOFF_NEAREST * d0)) ** 2
+    want = e * (h / r) ** (1 + k) * (d0 / np.maximum(r, FALLOFF_NEAREST * d0)) ** 2
     if model == "phong":
         got = out["rgb"][..., 0] / (128 / 255)
     else:  # linear light; GGX with roughness 1 adds a faint, nearly flat lobe: compare shapes

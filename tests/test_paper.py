@@ -8,10 +8,12 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 from scipy.spatial import cKDTree
 
 import glsynth as gs
 from glsynth.config import ConfigError, load_config
+from glsynth.lighting import beam_gain
 from glsynth.pipeline import views as V
 from glsynth.pipeline.bodies import TexelGeometry
 from glsynth.pipeline.paste import PasteSettings, Paster, paste_lesions
@@ -142,13 +144,14 @@ def test_room_light_placement(renderer):
     """The default room light sits light_distance from the viewed point, light_angle off
     the camera's direction about it, above the point (+Y) more often than below; a light
     the body blocks rejects the scene. When the flash fires the room light is dimmed by a
-    flash_room draw, never brightened."""
+    flash_room draw, never brightened, and the flash's beam, along the lens axis, lights
+    the frame's corners with a flash_corner draw of what it gives the middle."""
     rng0 = np.random.default_rng(1)
     mesh = plane(rng0, size=1.0)
     body = SimpleNamespace(mesh=mesh)
     v = dataclasses.replace(load_config().views, size=64, w=[0.3, 0.6], framing={"wild": 1.0},
                             light_angle=[10.0, 60.0], light_distance=[0.5, 2.0],
-                            flash=0.5, flash_room=[0.3, 0.6])
+                            flash=0.5, flash_room=[0.3, 0.6], flash_corner=[0.4, 0.7])
     above = below = blocked = flashed = 0
     for seed in range(60):
         rng = np.random.default_rng(seed)
@@ -170,6 +173,11 @@ def test_room_light_placement(renderer):
         if scene.flash is not None:
             flashed += 1
             assert scene.light.diffuse[0] <= 0.6 * v.diffuse[1] + 1e-12
+            cam = scene.camera
+            _, rays = cam.pixel_rays([cam.height // 2 - 0.5, -0.5], [cam.width // 2 - 0.5, -0.5])
+            centre, corner = beam_gain(torch.tensor(-rays), scene.flash).ravel().tolist()
+            assert centre == pytest.approx(1.0)
+            assert 0.4 - 1e-6 <= corner <= 0.7 + 1e-6
     assert above > 2 * below and flashed
     # the plane (normal +Z) blocks nothing in front of it: a light drawn behind it would be
     assert blocked == 0

@@ -31,7 +31,8 @@ def test_torch_skin_reflectance_matches_gl(renderer, rng, trial):
                                  falloff_distance=rng.choice([0.0, np.linalg.norm(p) * rng.uniform(0.3, 1.5)]),
                                  ambient_ground=rng.choice([1.0, rng.uniform(0, 1)])))
     lights.append(PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(0.2, 0.6),  # a flash
-                             falloff_distance=np.linalg.norm(cam.eye) * rng.uniform(0.5, 1.2)))
+                             falloff_distance=np.linalg.norm(cam.eye) * rng.uniform(0.5, 1.2),
+                             beam_axis=np.asarray(cam.target) - cam.eye, beam_exponent=rng.uniform(0, 30)))
     mat = _skin_material(rng, detail=False)
     out = renderer.render(mesh, cam, passes=("gbuffer", "rgb"), lights=lights, material=mat)
     img = diff.shade(out, mesh, torch.tensor(tex / 255.0, dtype=torch.float32), cam, lights, mat)

@@ -731,7 +731,8 @@ class Renderer:
         material = material or Material()
         for key, attr in (("u_light_pos", "position"), ("u_light_ambient", "ambient"),
                           ("u_light_diffuse", "diffuse"), ("u_light_specular", "specular"),
-                          ("u_light_falloff", "falloff_distance"), ("u_light_ground", "ambient_ground")):
+                          ("u_light_falloff", "falloff_distance"), ("u_light_ground", "ambient_ground"),
+                          ("u_light_beam", "beam")):
             if key in prog:  # a term that is zero for every pixel may be compiled out
                 prog[key].write(np.array([getattr(l, attr) for l in lights], "f4").tobytes())
         for key, value in (("u_mat_specular", material.specular), ("u_shininess", material.shininess),

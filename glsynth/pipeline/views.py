@@ -18,7 +18,7 @@ from ..assets.backgrounds import NEAR_BACKDROPS
 from ..camera import Camera
 from ..dataformat import SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN
 from ..errors import GlsynthError
-from ..lighting import Material, PointLight
+from ..lighting import Material, PointLight, beam_exponent_for
 from .photo import SRGB_TO_LINEAR, linear_to_srgb8
 
 
@@ -269,6 +269,12 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
         # a phone flash sits next to the lens: no ambient, the camera sees what it lights
         flash = PointLight(cam.eye, ambient=0.0, diffuse=rng.uniform(*v.flash_diffuse),
                            specular=rng.uniform(*v.flash_specular), falloff_distance=at_point(eye))
+        if v.flash_corner != [1.0, 1.0]:
+            # its beam along the lens axis, dimmer toward the frame's corners
+            corner_deg = np.degrees(np.arctan(np.tan(np.radians(cam.fov_deg) / 2) * np.hypot(1, cam.aspect)))
+            axis = np.asarray(cam.target, np.float64) - cam.eye
+            flash = replace(flash, beam_axis=tuple(axis),
+                            beam_exponent=beam_exponent_for(rng.uniform(*v.flash_corner), corner_deg))
         if v.flash_room != [1.0, 1.0]:
             # the camera exposes for its flash: the room light counts for less
             k = room_exposure = float(rng.uniform(*v.flash_room))
