@@ -282,6 +282,8 @@ class ViewsConfig:
     flash_corner: list = key([0.25, 1.0], "flash: its beam's intensity toward the frame's corners "
                              "relative to the middle (a phone's LED flash about 0.3-0.6, a "
                              "diffused or ring flash 1: even)", pair=between(0.01, 1))
+    flash_kelvin: list = key([5000.0, 6000.0], "flash: its colour temperature (K; a phone's LED "
+                             "flash 5,000-6,000), with views.light_kelvin", pair=between(1667, 25000))
     flash_room: list = key([0.05, 1.0], "flash: the room light's intensity when the flash fires, "
                            "relative to its own draw (the camera exposes for the flash: a phone "
                            "in a lit room 1-2 stops under, a clinical macro flash at f/8-16 "
@@ -289,6 +291,14 @@ class ViewsConfig:
                            pair=between(0, 1))
     ambient_tint: float = key(0.5, "tint the ambient light by the background's mean colour (0: none)",
                               within=between(0, 1))
+    light_kelvin: list = key([2700.0, 7500.0], "colour temperature of the room light (K, uniform in "
+                             "mired: warm lamps to daylight); the camera white-balances for the mix "
+                             "of lights at the viewed point, so only mixed light shows colour "
+                             "([0, 0]: white lights, the paper's)", pair=between(0, 25000),
+                             rule=Rule(lambda p: p == [0, 0] or p[0] >= 1667, "[0, 0] or from 1667"))
+    light_mixed: float = key(0.4, "probability that the room's ambient light has a colour temperature "
+                             "of its own (a window beside lamps), else the room light's",
+                             within=between(0, 1))
     shading: str = key("skin", "skin: linear-light skin reflectance with micro-relief and hair "
                        "(shaders/skin.frag); phong: the paper's", choices=SHADINGS)
     roughness: list = key([0.45, 0.6], "skin: GGX roughness of dry skin", pair=between(0.02, 1))

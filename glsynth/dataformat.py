@@ -130,6 +130,8 @@ def view_record(sample_id, size, scene, *, attempts, ambient_tint, photo, body, 
             "light": scene.light.to_dict(), "material": scene.material.to_dict(),
             "lights": lights_record(scene.lights),
             "ambient_tint": list(ambient_tint) if ambient_tint is not None else None,
+            **({"light_kelvin": scene.kelvin, "white_balance_gains": list(scene.white_balance)}
+               if scene.kelvin is not None else {}),
             "photo": photo, "body": body, "lesions": lesions, "nevi": nevi,
             "background": background, "fractions": fractions, "box_convention": BOX_CONVENTION}
 

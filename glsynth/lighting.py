@@ -131,6 +131,44 @@ def beam_exponent_for(corner_ratio, corner_angle_deg):
     return float(np.log(corner_ratio) / np.log(np.cos(np.radians(corner_angle_deg))))
 
 
+# CIE XYZ to linear sRGB (IEC 61966-2-1)
+XYZ_TO_LINEAR_SRGB = np.array([[3.2406, -1.5372, -0.4986],
+                               [-0.9689, 1.8758, 0.0415],
+                               [0.0557, -0.2040, 1.0570]])
+WHITE_KELVIN = 6504.0   # the colour temperature whose light comes out grey (sRGB's D65)
+
+
+def planckian_xy(kelvin):
+    """CIE 1931 (x, y) of a black body at ``kelvin`` (1667-25000 K), by the cubic fits of
+    Kim et al. (2002) to the Planckian locus."""
+    t = float(kelvin)
+    if not 1667 <= t <= 25000:
+        raise ValueError(f"colour temperature must be in [1667, 25000] K, got {kelvin}")
+    if t <= 4000:
+        x = -0.2661239e9 / t**3 - 0.2343589e6 / t**2 + 0.8776956e3 / t + 0.179910
+    else:
+        x = -3.0258469e9 / t**3 + 2.1070379e6 / t**2 + 0.2226347e3 / t + 0.240390
+    if t <= 2222:
+        y = -1.1063814 * x**3 - 1.34811020 * x**2 + 2.18555832 * x - 0.20219683
+    elif t <= 4000:
+        y = -0.9549476 * x**3 - 1.37418593 * x**2 + 2.09137015 * x - 0.16748867
+    else:
+        y = 3.0817580 * x**3 - 5.87338670 * x**2 + 3.75112997 * x - 0.37001483
+    return x, y
+
+
+def light_colour(kelvin):
+    """Linear-sRGB colour of a black-body light at ``kelvin`` as a camera balanced for
+    WHITE_KELVIN records it, scaled to a luminance (Rec. 709 Y) of 1: warm below,
+    bluish above, (1, 1, 1) at WHITE_KELVIN (below about 1,900 K, outside sRGB's gamut,
+    blue is clipped at 0)."""
+    def rgb(t):
+        x, y = planckian_xy(t)
+        return XYZ_TO_LINEAR_SRGB @ np.array([x / y, 1.0, (1 - x - y) / y])
+    c = np.maximum(rgb(kelvin) / rgb(WHITE_KELVIN), 0.0)
+    return c / (np.array([0.2126, 0.7152, 0.0722]) @ c)
+
+
 MODELS = ("phong", "skin")
 
 

@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 
 import glsynth as gs
 from glsynth.config import ConfigError, load_config
-from glsynth.lighting import beam_gain
+from glsynth.lighting import beam_gain, light_colour, planckian_xy
 from glsynth.pipeline import views as V
 from glsynth.pipeline.bodies import TexelGeometry
 from glsynth.pipeline.paste import PasteSettings, Paster, paste_lesions
@@ -105,6 +105,54 @@ def test_dilated_lesions_do_not_overlap(sheet, seed):
     so packed lesions come closer (the control)."""
     assert _min_gap_over_dilations(sheet, "dilated", seed) >= 0.9
     assert _min_gap_over_dilations(sheet, "lesion", seed) < 0.9
+
+
+def test_black_body_colours():
+    """Planckian chromaticities against published ones (CIE illuminant A is a 2856 K black
+    body under the older radiation constant, hence its looser bound); light colours keep
+    a luminance of 1, are grey at 6504 K, warm below and bluish above."""
+    for kelvin, xy, tol in ((2856, (0.44757, 0.40745), 1e-3), (5000, (0.3451, 0.3516), 3e-4),
+                            (6504, (0.3135, 0.3236), 3e-4)):
+        assert np.abs(np.subtract(planckian_xy(kelvin), xy)).max() < tol
+    luma = np.array([0.2126, 0.7152, 0.0722])
+    assert np.allclose(light_colour(6504), 1)
+    for kelvin in np.random.default_rng().uniform(1700, 20000, 8):
+        c = light_colour(kelvin)
+        assert luma @ c == pytest.approx(1) and (c >= 0).all()
+        assert (c[0] > c[2]) == (kelvin < 6504)
+    with pytest.raises(ValueError, match="colour temperature"):
+        planckian_xy(1000)
+
+
+def test_mixed_light_is_white_balanced_at_the_viewed_point(renderer):
+    """With coloured lights the camera balances for their mix at the viewed point: a grey
+    plane comes out grey there whatever the temperatures; toward the frame's corners,
+    where the flash's beam gives less, the warmer room light's colour shows."""
+    mesh = plane(np.random.default_rng(2), size=4.0).copy_with(texture=np.full((8, 8, 3), 90, np.uint8))
+    body = SimpleNamespace(mesh=mesh)
+    v = dataclasses.replace(load_config().views, size=renderer.width, w=[0.2, 0.4], framing={"wild": 1.0},
+                            flash=1.0, flash_corner=[0.3, 0.3], flash_room=[1.0, 1.0], shading="phong",
+                            wrap=[0.0, 0.0],
+                            specular=[0.0, 0.0], flash_specular=[0.0, 0.0], material_specular=[0.0, 0.0],
+                            light_kelvin=[2700.0, 3500.0], flash_kelvin=[5500.0, 6000.0], light_mixed=0.5)
+    seen = 0
+    for seed in range(10):
+        try:
+            scene = V.sample_scene(body, [], np.random.default_rng(seed), v, renderer)
+        except V.ViewRejected:
+            continue
+        assert set(scene.kelvin) == {"light", "ambient", "flash"}
+        out = renderer.render(mesh, scene.camera, passes=("gbuffer", "rgb"), lights=scene.lights,
+                              material=scene.material)
+        rgb = out["rgb"]
+        h, w = rgb.shape[:2]
+        centre = rgb[h // 2 - 1:h // 2 + 1, w // 2 - 1:w // 2 + 1].mean((0, 1))
+        assert np.ptp(centre) <= 2 / 255, centre * 255
+        for y, x in ((0, 0), (0, w - 1), (h - 1, 0), (h - 1, w - 1)):
+            if out["face_id"][y, x] >= 0:   # the plane, not past its edge
+                assert rgb[y, x, 0] > 1.05 * rgb[y, x, 2], rgb[y, x] * 255
+                seen += 1
+    assert seen >= 12
 
 
 def test_paper_light_placement(renderer):

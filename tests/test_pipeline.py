@@ -263,6 +263,7 @@ def test_a_flash_dims_a_room_background_but_not_a_drape(tmp_path):
     for k in (0.5, 0.1):
         out = tmp_path / f"k{k}"
         gs.Generate2DViews(small_config("views.flash=1", "views.framing={wild: 1}", f"views.flash_room=[{k}, {k}]",
+                                        "views.light_kelvin=[0, 0]",
                                         "backgrounds.clinical=0", "backgrounds.blur=[0, 0]", "photo.enabled=false",
                                         "lesions.per_body=0"), out).synthesize_views(progress=False)
         runs[k] = RunFolder(out)

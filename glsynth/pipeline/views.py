@@ -18,7 +18,7 @@ from ..assets.backgrounds import NEAR_BACKDROPS
 from ..camera import Camera
 from ..dataformat import SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN
 from ..errors import GlsynthError
-from ..lighting import Material, PointLight, beam_exponent_for
+from ..lighting import Material, PointLight, ambient_gain, beam_exponent_for, light_colour
 from .photo import SRGB_TO_LINEAR, linear_to_srgb8
 
 
@@ -36,6 +36,10 @@ class ViewScene:
     # the room light's share at the camera's exposure (below 1 when the camera exposes
     # for its flash): the background photograph, lit by the room, is dimmed by it too
     room_exposure: float = 1.0
+    # colour temperatures (K) of the room light, its ambient and the flash, when drawn
+    # (views.light_kelvin), and the camera's white-balance gains for their mix
+    kelvin: dict | None = None
+    white_balance: tuple = (1.0, 1.0, 1.0)
 
     @property
     def lights(self) -> list:
@@ -281,8 +285,52 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
             light = replace(light, ambient=tuple(k * np.asarray(light.ambient)),
                             diffuse=tuple(k * np.asarray(light.diffuse)),
                             specular=tuple(k * np.asarray(light.specular)))
-    return ViewScene(cam, light, material, centre, flash, point=np.asarray(point, np.float64),
-                     framing=framing, room_exposure=room_exposure)
+    scene = ViewScene(cam, light, material, centre, flash, point=np.asarray(point, np.float64),
+                      framing=framing, room_exposure=room_exposure)
+    if v.light_kelvin[1] > 0:   # drawn last: the scene's other draws stay as they were
+        scene = _coloured_lights(scene, normal, rng, v)
+    return scene
+
+
+def _mired_uniform(rng, kelvin_range) -> float:
+    """A colour temperature (K) drawn uniform in mired (1e6 / K), the scale on which
+    equal steps look alike."""
+    lo, hi = 1e6 / kelvin_range[1], 1e6 / kelvin_range[0]
+    return 1e6 / rng.uniform(lo, hi)
+
+
+def _coloured_lights(scene, normal, rng, v) -> ViewScene:
+    """Black-body colours for the room light (views.light_kelvin), for its ambient (the
+    same lamps, or with probability views.light_mixed a window or other lamps of their
+    own temperature) and for the flash (views.flash_kelvin); then the camera's white
+    balance for their mix at the viewed point, so that the point comes out neutral and
+    the parts lit more by one source than the others take its colour, as mixed light
+    does."""
+    kelvin = {"light": _mired_uniform(rng, v.light_kelvin)}
+    kelvin["ambient"] = _mired_uniform(rng, v.light_kelvin) if rng.random() < v.light_mixed else kelvin["light"]
+    if scene.flash is not None:
+        kelvin["flash"] = _mired_uniform(rng, v.flash_kelvin)
+    colour = {k: light_colour(t) for k, t in kelvin.items()}
+    n = np.asarray(normal, np.float64) / np.linalg.norm(normal)
+    facing = lambda p: max(float(n @ (p - scene.point)) / np.linalg.norm(p - scene.point), 0.0)  # noqa: E731
+    light = scene.light
+    # each term as it reaches the viewed point (fall-off is 1 there by construction)
+    energy = {"light": np.mean(light.diffuse) * facing(np.asarray(light.position)),
+              "ambient": np.mean(light.ambient) * ambient_gain(n[1], light.ambient_ground)}
+    if scene.flash is not None:
+        energy["flash"] = np.mean(scene.flash.diffuse) * facing(np.asarray(scene.flash.position))
+    total = sum(energy.values())
+    mix = sum(energy[k] * colour[k] for k in energy) / total if total > 0 else colour["light"]
+    gain = 1 / mix          # each colour has luminance 1, so the mix and its balance keep it
+    light = replace(light, ambient=tuple(colour["ambient"] * gain * light.ambient),
+                    diffuse=tuple(colour["light"] * gain * light.diffuse),
+                    specular=tuple(colour["light"] * gain * light.specular))
+    flash = scene.flash
+    if flash is not None:
+        flash = replace(flash, diffuse=tuple(colour["flash"] * gain * flash.diffuse),
+                        specular=tuple(colour["flash"] * gain * flash.specular))
+    return replace(scene, light=light, flash=flash, white_balance=tuple(gain.tolist()),
+                   kelvin={k: round(t, 1) for k, t in kelvin.items()})
 
 
 def ambient_tint_from(background, strength) -> tuple:
@@ -430,19 +478,30 @@ def nevi_label_map(body):
     return m
 
 
-def background_exposure(scene: ViewScene, background_meta: dict) -> float:
+def background_exposure(scene: ViewScene, background_meta: dict):
     """How bright the background comes out relative to its photograph: a room (or a
     wall) behind the patient has only the room's light, which a camera exposing for its
-    flash records at ``scene.room_exposure``; a drape, sheet or clothing against the
-    patient is lit by the flash as the skin is."""
-    return 1.0 if background_meta.get("kind") in NEAR_BACKDROPS else scene.room_exposure
+    flash records at ``scene.room_exposure`` and white-balanced for the light on the
+    patient records in the room light's colour; a drape, sheet or clothing against the
+    patient is lit as the skin is. A float, or RGB gains when the lights have colours."""
+    if background_meta.get("kind") in NEAR_BACKDROPS:
+        return 1.0
+    if scene.kelvin is None:
+        return scene.room_exposure
+    colour = light_colour(scene.kelvin["light"]) * np.asarray(scene.white_balance)
+    return (scene.room_exposure * colour).tolist()
 
 
 def expose(image, gain):
-    """An sRGB uint8 image with its light scaled by ``gain`` (in linear light)."""
-    if gain == 1.0:
+    """An sRGB uint8 image with its light scaled by ``gain`` (in linear light; a float,
+    or one per channel, R G B)."""
+    gain = np.asarray(gain, np.float32)
+    if (gain == 1.0).all():
         return image
-    return cv2.LUT(np.ascontiguousarray(image), linear_to_srgb8(SRGB_TO_LINEAR * np.float32(gain)))
+    if gain.ndim == 0:
+        return cv2.LUT(np.ascontiguousarray(image), linear_to_srgb8(SRGB_TO_LINEAR * gain))
+    lut = linear_to_srgb8(SRGB_TO_LINEAR[:, None] * gain)   # 256 x 3, a column per channel
+    return cv2.LUT(np.ascontiguousarray(image), lut.reshape(256, 1, 3))
 
 
 def composite(rgba, background, blur_radius):
