@@ -1,6 +1,6 @@
 """Cost of a change to the skin shader, paired in one process.
 
-    .venv/bin/python tools/bench_shader.py --peer OTHER/shaders [--views 40] [--repeats 3] [--size 512]
+    .venv/bin/python tools/bench_shader.py --peer OTHER/shaders [--views 40] [--repeats 3] [--size 512] [--beam K]
 
 Renders the RGB pass (skin shading with micro-detail) of one built-in body from the same
 cameras (surface points at 4 cm to 1 m, log-uniform) with two renderers: one compiled from
@@ -35,6 +35,8 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--beam", type=float, default=0.0, metavar="K",
+                    help="the light at the camera is a flash with a cos^K beam along the view")
     args = ap.parse_args()
     if not (args.peer / "skin.frag").is_file():
         ap.error(f"{args.peer} has no skin.frag")
@@ -45,6 +47,11 @@ def main():
     cams = [gs.Camera.from_surface(mesh.vertices[i], mesh.vertex_normals[i], float(w),
                                    width=args.size, height=args.size) for i, w in zip(idx, dist)]
     material = Material(model="skin", detail=True)
+
+    def lights(cam):
+        axis = np.subtract(cam.target, cam.eye)
+        return [PointLight(cam.eye, beam_axis=axis, beam_exponent=args.beam)]
+
     folders = (resources.shader_dir(), args.peer.resolve())
     renderers = []
     own = resources.shader_dir
@@ -53,7 +60,7 @@ def main():
         resources.shader_dir = lambda folder=folder: folder
         try:
             r = gs.Renderer(args.size, args.size)
-            r.render(mesh, cams[0], passes=("rgb",), lights=[PointLight(cams[0].eye)], material=material)
+            r.render(mesh, cams[0], passes=("rgb",), lights=lights(cams[0]), material=material)
         finally:
             resources.shader_dir = own
         renderers.append(r)
@@ -62,7 +69,7 @@ def main():
         for cam in cams:
             for k, r in enumerate(renderers):
                 t0 = time.process_time()
-                r.render(mesh, cam, passes=("rgb",), lights=[PointLight(cam.eye)], material=material)
+                r.render(mesh, cam, passes=("rgb",), lights=lights(cam), material=material)
                 times[k].append(time.process_time() - t0)
     ours, peer = (1000 * statistics.median(t) for t in times)
     ratio = statistics.median(a / b for a, b in zip(*times))
