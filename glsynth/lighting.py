@@ -131,10 +131,6 @@ def beam_exponent_for(corner_ratio, corner_angle_deg):
     return float(np.log(corner_ratio) / np.log(np.cos(np.radians(corner_angle_deg))))
 
 
-# CIE XYZ to linear sRGB (IEC 61966-2-1)
-XYZ_TO_LINEAR_SRGB = np.array([[3.2406, -1.5372, -0.4986],
-                               [-0.9689, 1.8758, 0.0415],
-                               [0.0557, -0.2040, 1.0570]])
 WHITE_KELVIN = 6504.0   # the colour temperature whose light comes out grey (sRGB's D65)
 
 
@@ -162,11 +158,13 @@ def light_colour(kelvin):
     WHITE_KELVIN records it, scaled to a luminance (Rec. 709 Y) of 1: warm below,
     bluish above, (1, 1, 1) at WHITE_KELVIN (below about 1,900 K, outside sRGB's gamut,
     blue is clipped at 0)."""
+    from .assets.colour import LINEAR_RGB_TO_XYZ, XYZ_TO_LINEAR_RGB   # (the package imports lighting)
+
     def rgb(t):
         x, y = planckian_xy(t)
-        return XYZ_TO_LINEAR_SRGB @ np.array([x / y, 1.0, (1 - x - y) / y])
+        return XYZ_TO_LINEAR_RGB @ np.array([x / y, 1.0, (1 - x - y) / y])
     c = np.maximum(rgb(kelvin) / rgb(WHITE_KELVIN), 0.0)
-    return c / (np.array([0.2126, 0.7152, 0.0722]) @ c)
+    return c / (LINEAR_RGB_TO_XYZ[1] @ c)
 
 
 MODELS = ("phong", "skin")

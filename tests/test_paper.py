@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 
 import glsynth as gs
 from glsynth.config import ConfigError, load_config
+from glsynth.assets.colour import LINEAR_RGB_TO_XYZ
 from glsynth.lighting import beam_gain, light_colour, planckian_xy
 from glsynth.pipeline import views as V
 from glsynth.pipeline.bodies import TexelGeometry
@@ -114,7 +115,7 @@ def test_black_body_colours():
     for kelvin, xy, tol in ((2856, (0.44757, 0.40745), 1e-3), (5000, (0.3451, 0.3516), 3e-4),
                             (6504, (0.3135, 0.3236), 3e-4)):
         assert np.abs(np.subtract(planckian_xy(kelvin), xy)).max() < tol
-    luma = np.array([0.2126, 0.7152, 0.0722])
+    luma = LINEAR_RGB_TO_XYZ[1]
     assert np.allclose(light_colour(6504), 1)
     for kelvin in np.random.default_rng().uniform(1700, 20000, 8):
         c = light_colour(kelvin)

@@ -37,13 +37,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from .colour import srgb_to_lab
+from .colour import WHITE_D65, XYZ_TO_LINEAR_RGB, srgb_to_lab
 
 LAMBDA = np.arange(400.0, 701.0, 10.0)          # nm
-_D65 = np.array([0.95047, 1.0, 1.08883])
-_XYZ_TO_LINEAR = np.linalg.inv(np.array([[0.4124564, 0.3575761, 0.1804375],
-                                         [0.2126729, 0.7151522, 0.0721750],
-                                         [0.0193339, 0.1191920, 0.9503041]]))
 EPIDERMIS_CM = 0.006                            # 60 um
 EPI_SCATTER = 0.12      # the epidermis scatters 0.12 times as much as the dermis per length
 SURFACE = 0.005         # diffuse share of the surface reflection
@@ -174,7 +170,7 @@ def linear_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, e
     [0, 1] is a colour outside sRGB's gamut."""
     sp = _spectra()
     shape, flat = _flattened(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis, scatter)
-    to_linear = (sp["weights"] * (_D65 / sp["white"])) @ _XYZ_TO_LINEAR.T   # (31, 3)
+    to_linear = (sp["weights"] * (WHITE_D65 / sp["white"])) @ XYZ_TO_LINEAR_RGB.T   # (31, 3)
     out = np.empty((flat[0].size, 3))
     for s in range(0, flat[0].size, _BLOCK):
         out[s:s + _BLOCK] = reflectance(*(p[s:s + _BLOCK] for p in flat)) @ to_linear

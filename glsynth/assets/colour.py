@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 
-_RGB2XYZ = np.array([[0.4124564, 0.3575761, 0.1804375],
-                     [0.2126729, 0.7151522, 0.0721750],
-                     [0.0193339, 0.1191920, 0.9503041]])
-_XYZ2RGB = np.linalg.inv(_RGB2XYZ)
-_WHITE_D65 = np.array([0.95047, 1.0, 1.08883])
+# linear sRGB <-> CIE XYZ (sRGB primaries, D65 white); the middle row is luminance Y
+LINEAR_RGB_TO_XYZ = np.array([[0.4124564, 0.3575761, 0.1804375],
+                              [0.2126729, 0.7151522, 0.0721750],
+                              [0.0193339, 0.1191920, 0.9503041]])
+XYZ_TO_LINEAR_RGB = np.linalg.inv(LINEAR_RGB_TO_XYZ)
+WHITE_D65 = np.array([0.95047, 1.0, 1.08883])
 _DELTA = 6.0 / 29.0
 
 # Fitzpatrick type -> (lo, hi] ITA band in degrees (Del Bino et al. / Groh et al.).
@@ -71,7 +72,7 @@ def srgb_to_lab(rgb) -> np.ndarray:
     rgb = np.asarray(rgb)
     c = rgb.astype(np.float64) / 255.0 if rgb.dtype == np.uint8 else rgb.astype(np.float64)
     lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-    xyz = lin @ _RGB2XYZ.T / _WHITE_D65
+    xyz = lin @ LINEAR_RGB_TO_XYZ.T / WHITE_D65
     f = np.where(xyz > _DELTA ** 3, np.cbrt(xyz), xyz / (3 * _DELTA ** 2) + 4.0 / 29.0)
     L = 116.0 * f[..., 1] - 16.0
     a = 500.0 * (f[..., 0] - f[..., 1])
@@ -84,8 +85,8 @@ def lab_to_srgb(lab) -> np.ndarray:
     lab = np.asarray(lab, dtype=np.float64)
     fy = (lab[..., 0] + 16.0) / 116.0
     f = np.stack([fy + lab[..., 1] / 500.0, fy, fy - lab[..., 2] / 200.0], axis=-1)
-    xyz = np.where(f > _DELTA, f ** 3, 3 * _DELTA ** 2 * (f - 4.0 / 29.0)) * _WHITE_D65
-    lin = np.clip(xyz @ _XYZ2RGB.T, 0.0, 1.0)
+    xyz = np.where(f > _DELTA, f ** 3, 3 * _DELTA ** 2 * (f - 4.0 / 29.0)) * WHITE_D65
+    lin = np.clip(xyz @ XYZ_TO_LINEAR_RGB.T, 0.0, 1.0)
     return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
 
 
