@@ -120,6 +120,14 @@ def beam_gain(to_light, light):
     return cos.clamp(min=1e-6) ** light.beam_exponent
 
 
+def direct_gain(to_light, light):
+    """The share of a point light's direct intensity that reaches a surface point:
+    ``falloff_gain`` times ``beam_gain``. ``to_light``: (..., 3) torch tensor from the
+    surface to the light; returns (..., 1) or the float 1."""
+    return falloff_gain(to_light.norm(dim=-1, keepdim=True), light.falloff_distance) \
+        * beam_gain(to_light, light)
+
+
 def beam_exponent_for(corner_ratio, corner_angle_deg):
     """The beam exponent that lights a direction ``corner_angle_deg`` off the axis with
     ``corner_ratio`` (0-1] of the axis's intensity (a flash's fall-off to the frame's

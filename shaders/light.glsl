@@ -20,3 +20,9 @@ float beam_gain(vec3 to_light, vec4 beam) {
     float c = max(-dot(to_light, beam.xyz) / max(length(to_light), 1e-20), 1e-6);
     return pow(c, beam.w);
 }
+
+// Share of a point light's direct intensity reaching the surface
+// (glsynth.lighting.direct_gain): fall-off times beam.
+float direct_gain(vec3 to_light, float d0, vec4 beam) {
+    return falloff_gain(length(to_light), d0) * beam_gain(to_light, beam);
+}

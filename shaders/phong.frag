@@ -76,7 +76,7 @@ void main() {
 #else
         float vis = 1.0;
 #endif
-        vis *= falloff_gain(length(to_light), u_light_falloff[i]) * beam_gain(to_light, u_light_beam[i]);
+        vis *= direct_gain(to_light, u_light_falloff[i], u_light_beam[i]);
         light_sum += u_light_ambient[i] * ambient_gain(n.y, u_light_ground[i])
                    + vis * u_light_diffuse[i] * max((cos_nl + u_wrap) / (1.0 + u_wrap), 0.0);
         if (cos_nl > 0.0) {

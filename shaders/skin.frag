@@ -376,7 +376,7 @@ void main() {
 #else
         float vis = 1.0;
 #endif
-        vis *= falloff_gain(length(to_light), u_light_falloff[i]) * beam_gain(to_light, u_light_beam[i]);
+        vis *= direct_gain(to_light, u_light_falloff[i], u_light_beam[i]);
         float nl_detail = dot(n, l);
         float nl_geo = dot(n_shape, l);
         vec3 nl = mix(vec3(nl_detail), vec3(nl_geo), vec3(0.6, 0.3, 0.15));

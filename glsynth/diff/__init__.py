@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..lighting import Material, PointLight, ambient_gain, beam_gain, check_lights, falloff_gain
+from ..lighting import Material, PointLight, ambient_gain, check_lights, direct_gain
 
 __all__ = ["interpolate", "texture", "phong", "phong_terms", "skin_terms", "shade", "surface",
            "GBuffer", "srgb_to_linear", "linear_to_srgb"]
@@ -106,8 +106,7 @@ def phong_terms(position, normal, eye, lights, material):
         lp = torch.tensor(light.position, dtype=dt, device=dev)
         to_light = lp - position
         l = F.normalize(to_light, dim=-1, eps=1e-20)
-        gain = falloff_gain(to_light.norm(dim=-1, keepdim=True), light.falloff_distance) \
-            * beam_gain(to_light, light)
+        gain = direct_gain(to_light, light)
         cos_nl = (n * l).sum(-1, keepdim=True)
         # wrap lighting (Material.wrap, 0 = Lambert): max((n.l + wrap) / (1 + wrap), 0)
         diffuse = ((cos_nl + wrap) / (1 + wrap)).clamp(min=0) if wrap else cos_nl.clamp(min=0)
@@ -165,9 +164,7 @@ def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=No
         l = F.normalize(to_light, dim=-1, eps=1e-20)
         nl = (n * l).sum(-1, keepdim=True)
         diffuse = ((nl + wrap) / (1 + wrap)).clamp(min=0)
-        e = torch.tensor(light.diffuse, dtype=dt, device=dev) \
-            * falloff_gain(to_light.norm(dim=-1, keepdim=True), light.falloff_distance) \
-            * beam_gain(to_light, light)
+        e = torch.tensor(light.diffuse, dtype=dt, device=dev) * direct_gain(to_light, light)
         light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) \
             * ambient_gain(ng[..., 1:2], light.ambient_ground) + e * diffuse
         h = F.normalize(l + v, dim=-1, eps=1e-20)
