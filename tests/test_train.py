@@ -399,14 +399,9 @@ def test_evaluate_end_to_end_on_a_fitz17k_folder(trained, tmp_path):
             write_png(pairs / f"{sid}_segmentation.png", les.astype(np.uint8) * 255)
     out2 = tmp_path / "report2"
     assert main(["evaluate", "--model", str(path), "--real", str(pairs), "--layout", "pairs",
-                 "--out", str(out2), "-q", "--tta-scales", "1,1.5"]) == 0
+                 "--out", str(out2), "-q"]) == 0
     s2 = json.load(open(out2 / "summary.json"))
     assert list(s2["classes"]) == ["lesion"] and s2["n_images"] == 2
-    assert s2["tta_scales"] == [1.0, 1.5] and "and to 64, 96 px" in open(out2 / "report.md").read()
-    for r in csv.DictReader(open(out2 / "per_image.csv")):
-        img, les, _ = cases[r["id"]]
-        pred = predict(model, read_rgb(pairs / f"{r['id']}.png"), 64, tta="d4", scales=(1, 1.5))
-        assert float(r["lesion_jaccard"]) == pytest.approx(metrics.jaccard(pred == 0, les), abs=1e-6)
 
 
 def test_test_time_views_are_turned_back_before_they_are_averaged(rng):
@@ -435,29 +430,6 @@ def test_test_time_views_are_turned_back_before_they_are_averaged(rng):
     np.testing.assert_allclose(plain, ref, atol=1e-6)
     with pytest.raises(InputError, match="test-time augmentation 'd8'"):
         predict_probs(model, img, 64, tta="d8")
-
-
-def test_test_time_scales_average_logits_over_input_sizes(rng):
-    """Scales (1, 1.5) average the logits of the image resized to 64 and to 96 px, each
-    upsampled to the image's own size; an empty or out-of-range list is a clear error."""
-    import torch.nn.functional as F
-    from glsynth.errors import InputError
-    from glsynth.train.data import preprocess
-    from glsynth.train.evaluate import predict_probs
-    torch.manual_seed(int(rng.integers(1 << 31)))
-    model = SegNet(n_seg=3, n_anatomy=16, width=0.5).eval()
-    h, w = (int(v) for v in rng.integers(70, 130, 2))
-    img = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
-    with torch.no_grad():
-        logits = [F.interpolate(model(torch.from_numpy(preprocess(img, s))[None])["seg"], size=(h, w),
-                                mode="bilinear", align_corners=False) for s in (64, 96)]
-    ref = torch.softmax((logits[0] + logits[1]) / 2, 1)[0].numpy()
-    np.testing.assert_allclose(predict_probs(model, img, 64, scales=(1, 1.5)), ref, atol=1e-5)
-    single = predict_probs(model, img, 64, scales=(1.5,))
-    assert np.abs(single - ref).max() > 1e-3 and single.shape == (3, h, w)
-    for bad in ((), (0.0,), (1, 9)):
-        with pytest.raises(InputError, match="test-time scales"):
-            predict_probs(model, img, 64, scales=bad)
 
 
 def test_train_cli(synth, tmp_path):

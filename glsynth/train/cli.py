@@ -1,6 +1,5 @@
 """``glsynth train`` and ``glsynth evaluate`` (registered by glsynth.cli)."""
 from __future__ import annotations
-import argparse
 
 from ..errors import InputError
 
@@ -39,23 +38,13 @@ def add_tta_argument(p):
     p.add_argument("--tta", default="d4", choices=("none", "flip", "d4"),
                    help="test-time augmentation: average the logits over the mirror image (flip) "
                         "or all eight flips and quarter turns (d4, the default); none: one view")
-    p.add_argument("--tta-scales", type=parse_scales, default=(1.0,), metavar="S,S,...",
-                   help="also average over these input scales (times --size; e.g. 1,1.5)")
-
-
-def parse_scales(text: str) -> tuple:
-    try:
-        return tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected numbers separated by commas, got {text!r}") from None
 
 
 def cmd_evaluate(args):
     from .evaluate import evaluate
     set_threads(args)
     s = evaluate(args.model, args.real, args.layout, args.out, device=args.device, size=args.size,
-                 grid_n=args.grid, progress=not args.quiet, tta=args.tta,
-                 scales=args.tta_scales)
+                 grid_n=args.grid, progress=not args.quiet, tta=args.tta)
     print_summary(s)
     print(f"wrote {args.out}/report.md, per_image.csv, grid.png")
 

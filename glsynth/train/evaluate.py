@@ -84,40 +84,25 @@ def tta_views(tta: str) -> list:
     return TTA[tta]
 
 
-def check_scales(scales) -> tuple:
-    """``scales`` as a tuple of positive floats; anything else is an InputError."""
-    try:
-        scales = tuple(float(v) for v in scales)
-    except (TypeError, ValueError):
-        raise InputError(f"test-time scales must be numbers, got {scales!r}") from None
-    if not scales or not all(0.25 <= v <= 4 for v in scales):
-        raise InputError(f"test-time scales must be in [0.25, 4], got {list(scales)}")
-    return scales
-
-
 @torch.no_grad()
-def predict_probs(model, rgb: np.ndarray, size: int, device="cpu", tta="none", scales=(1.0,)) -> np.ndarray:
+def predict_probs(model, rgb: np.ndarray, size: int, device="cpu", tta="none") -> np.ndarray:
     """3 x H x W float32 softmax probabilities (lesion, skin, non-skin) at the image's own
-    resolution: for each of ``scales`` (the shorter side resized to scale x size), the
-    logits of the ``tta`` views (``TTA``), each turned back and upsampled bilinearly;
-    all of them averaged, then the softmax."""
+    resolution: the logits of the ``tta`` views (``TTA``), each turned back, averaged,
+    upsampled bilinearly, then the softmax."""
     views = tta_views(tta)
-    scales = check_scales(scales)
+    x = torch.from_numpy(preprocess(rgb, size))[None].to(device)
     logits = 0
-    for scale in scales:
-        x = torch.from_numpy(preprocess(rgb, max(8, round(size * scale))))[None].to(device)
-        at_scale = 0
-        for flip, turns in views:
-            view = torch.rot90(x.flip(-1) if flip else x, turns, (-2, -1))
-            y = torch.rot90(model(view)["seg"], -turns, (-2, -1))
-            at_scale = at_scale + (y.flip(-1) if flip else y)
-        logits = logits + F.interpolate(at_scale, size=rgb.shape[:2], mode="bilinear", align_corners=False)
-    return torch.softmax(logits / (len(views) * len(scales)), 1)[0].float().cpu().numpy()
+    for flip, turns in views:
+        view = torch.rot90(x.flip(-1) if flip else x, turns, (-2, -1))
+        y = torch.rot90(model(view)["seg"], -turns, (-2, -1))
+        logits = logits + (y.flip(-1) if flip else y)
+    logits = F.interpolate(logits / len(views), size=rgb.shape[:2], mode="bilinear", align_corners=False)
+    return torch.softmax(logits, 1)[0].float().cpu().numpy()
 
 
-def predict(model, rgb: np.ndarray, size: int, device="cpu", tta="none", scales=(1.0,)) -> np.ndarray:
+def predict(model, rgb: np.ndarray, size: int, device="cpu", tta="none") -> np.ndarray:
     """HxW uint8 class map (0 lesion, 1 skin, 2 non-skin) at the image's own resolution."""
-    return predict_probs(model, rgb, size, device, tta, scales).argmax(0).astype(np.uint8)
+    return predict_probs(model, rgb, size, device, tta).argmax(0).astype(np.uint8)
 
 
 def truth_map(shape, masks: dict) -> np.ndarray:
@@ -235,15 +220,13 @@ def breakdown(rows, key, classes) -> dict:
 
 
 def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, progress=True,
-             extra=None, tta="d4", scales=(1.0,)):
+             extra=None, tta="d4"):
     """Score `model_path` on the real images in `real`; write report.md, per_image.csv,
     summary.json and grid.png to `out`. Returns the summary dict (``extra`` is merged
-    into it before it is written). tta: ``TTA``'s views averaged per image, at each
-    of ``scales`` times the input size."""
+    into it before it is written). tta: ``TTA``'s views averaged per image."""
     if layout not in ("fitz17k", "pairs"):
         raise InputError(f"unknown layout {layout!r} (expected 'fitz17k' or 'pairs')")
     tta_views(tta)
-    scales = check_scales(scales)
     model, ck = load_model(model_path, device)
     size = int(size or ck["hparams"]["size"])
     samples = real_samples(real, layout, with_meta=True)
@@ -253,7 +236,7 @@ def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, 
     for sid, img_path, masks, meta in tqdm(samples, desc="evaluate", unit="img", disable=not progress):
         rgb = read_rgb(img_path)
         truth = truth_map(rgb.shape[:2], masks)
-        probs = predict_probs(model, rgb, size, device, tta, scales)
+        probs = predict_probs(model, rgb, size, device, tta)
         pred = probs.argmax(0).astype(np.uint8)
         rows.append({"id": sid, "image": img_path, "width": rgb.shape[1], "height": rgb.shape[0],
                      "diagnosis": meta.get("label") or "", "fitzpatrick": meta.get("fitzpatrick") or "",
@@ -268,7 +251,7 @@ def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, 
         wr.writerow({k: (f"{v:.6f}" if isinstance(v, float) else v) for k, v in r.items()})
     write_text(os.path.join(out, "per_image.csv"), buf.getvalue())
     summary = {"model": os.fspath(model_path), "real": os.fspath(real), "layout": layout, "size": size,
-               "tta": tta, "tta_scales": list(scales),
+               "tta": tta,
                "n_images": len(rows), "classes": summarise(rows, classes),
                "detection": summarise_detection(rows),
                "by_diagnosis": breakdown(rows, "diagnosis", classes),
@@ -280,18 +263,11 @@ def evaluate(model_path, real, layout, out, device="cpu", size=None, grid_n=12, 
     return summary
 
 
-def scales_text(scales, size) -> str:
-    if list(scales) == [1.0]:
-        return ""
-    return " and to " + ", ".join(f"{round(size * v)}" for v in scales) + " px (logits averaged over the scales)"
-
-
 def report_md(s):
     lines = [f"# Segmentation evaluation", "",
              f"- model: `{s['model']}` ({s['model_steps']} training steps on {s['model_data']})",
              f"- images: `{s['real']}` ({s['layout']} layout), {s['n_images']} images",
-             f"- preprocessing: Shades of Gray (p=6), shorter side resized to {s['size']} px"
-             + scales_text(s.get("tta_scales", [1.0]), s["size"]) + ", "
+             f"- preprocessing: Shades of Gray (p=6), shorter side resized to {s['size']} px, "
              "ImageNet normalisation; " + TTA_TEXT[s.get("tta", "none")] + "; scored at the "
              "original resolution", "",
              "Per-image Jaccard (J) and Dice (D), mean ± std over images. Empty-mask convention: "

@@ -147,7 +147,7 @@ def time_train_steps(data, size, batch_size, width, depth, device, n=12, warmup=
 
 def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=False, data=None,
              device=None, seed=0, size=256, width=1.0, depth=0, batch_size=8, lr=2e-3,
-             gen_share=0.3, views_per_body=80, bodies_per_part=2, progress=True, tta="d4", tta_scales=(1.0,)) -> dict:
+             gen_share=0.3, views_per_body=80, bodies_per_part=2, progress=True, tta="d4") -> dict:
     """Run the yardstick; returns the summary dict (also written to ``out/summary.json``)."""
     import torch
     from .evaluate import evaluate
@@ -234,7 +234,7 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
         "ema": ck["hparams"].get("ema", 0.0),
         "seed": seed}}
     summary = evaluate(model_path, real, layout, out, device=device, progress=progress, extra=extra,
-                       tta=tta, scales=tta_scales)
+                       tta=tta)
     spent["evaluate"] = time.perf_counter() - t0
     summary["sim2real"]["total_seconds"] = round(sum(spent.values()), 1)
     summary["jaccard"] = {c: v["jaccard_mean"] for c, v in summary["classes"].items()}
@@ -315,7 +315,6 @@ def cmd_sim2real(args):
                  val_layout=args.val_layout, resume=args.resume, data=args.data, device=args.device,
                  seed=args.seed, size=args.size, width=args.width, depth=args.depth,
                  gen_share=args.gen_share, views_per_body=args.views_per_body,
-                 bodies_per_part=args.bodies_per_part, progress=not args.quiet, tta=args.tta,
-                 tta_scales=args.tta_scales)
+                 bodies_per_part=args.bodies_per_part, progress=not args.quiet, tta=args.tta)
     print_summary(s)
     print(f"wrote {args.out}/report.md, summary.json, per_image.csv, grid.png")
