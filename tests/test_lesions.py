@@ -793,10 +793,14 @@ def test_purpura_is_purple_and_comes_as_petechiae_papules_or_a_bruise(rng):
 def test_discoid_lupus_has_a_scaly_dark_rim_around_a_pale_scar_with_plugs(rng):
     """Discoid lupus: the rim is raised, scalier and darker than the centre (more
     melanin), the centre is depigmented, and it holds follicular plugs, small separate
-    dots of keratin. On type VI skin the rim reads darker than the scar (most of it:
-    islands of pigment stay, and one may sit at the very centre)."""
+    dots of keratin, mostly in the active border: the scar keeps few of them (separate
+    dots per area, over ten draws: under 0.2 of the lesion's plugs; 0.07-0.10 measured,
+    ~0.42 with every plug kept, as neighbours merge).
+    On type VI skin the rim reads darker than the scar (most of it: islands of pigment
+    stay, and one may sit at the very centre)."""
     from glsynth.assets.lesions import reference_skin
     from glsynth.assets.morphology import apply_to_skin, make_condition
+    in_scar, expected = 0, 0.0
     for seed in rng.integers(2 ** 31, size=10):
         f = make_condition("lupus", [int(seed)], size=256)
         d = ndimage.distance_transform_edt(f.mask)
@@ -807,11 +811,15 @@ def test_discoid_lupus_has_a_scaly_dark_rim_around_a_pale_scar_with_plugs(rng):
         assert (m[scar] < 0.5).mean() > 0.2                                 # a depigmented scar
         assert np.median(f.f["height"][rim]) > np.median(f.f["height"][centre])
         assert np.mean(f.f["scale"][rim] > 0.2) > np.mean(f.f["scale"][centre] > 0.2)
-        plugs, n = ndimage.label(f.f["scale"] * (d > 0.5 * d.max()) > 0.5)
-        assert n >= 3 and np.bincount(plugs.ravel())[1:].max() < 0.01 * f.mask.sum(), n
+        core = d > 0.75 * d.max()
+        plugs, n = ndimage.label(f.f["scale"] * core > 0.5)
+        assert n == 0 or np.bincount(plugs.ravel())[1:].max() < 0.01 * f.mask.sum(), n
+        in_scar += n
+        expected += f.params["follicular_plugs"] * core.sum() / f.mask.sum()
         skin = reference_skin(6, 256, np.random.default_rng(int(seed)))
         lum = srgb_to_lab(apply_to_skin(f, skin))[..., 0]
         assert np.median(lum[rim]) < np.percentile(lum[scar], 75) - 10
+    assert 0 < in_scar < 0.2 * expected, (in_scar, expected)
 
 
 def test_vessel_trees_fork_and_taper_and_cover_their_drawn_area(rng):

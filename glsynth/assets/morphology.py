@@ -809,7 +809,8 @@ def _lupus(b, rng, R):
     black on brown skin), carrying adherent scale, around a scarred centre: atrophic,
     depigmented, faintly shiny, with islands of pigment left in it, fine vessels and
     follicular plugs (keratin in dilated follicle openings: white dots a few tenths of a
-    millimetre across, a millimetre or two apart)."""
+    millimetre across, a millimetre or two apart) in the active border; the scar has
+    lost most of its follicles (scarring alopecia), so few plugs sit there."""
     c = b.c
     sd = c.shape("round", R, aspect=rng.uniform(0.6, 1.0), irregular=0.25, warp=0.15)
     w = b.weight(sd, R * 0.2, "ill-defined")
@@ -834,8 +835,10 @@ def _lupus(b, rng, R):
     plugs = arrange(c, "widespread", n, R, gap * 0.45)                 # irregularly spaced
     if plugs:
         radii = np.full(len(plugs), max(0.15, 0.8 * c.px)) * rng.uniform(0.8, 1.3, len(plugs))
-        plug_sd, _ = spots(c, plugs, radii)
-        dots = smoothstep(-c.px, c.px, plug_sd) * w
+        plug_sd, owner = spots(c, plugs, radii)
+        # the scar keeps about a seventh of its follicles, chosen at random
+        kept = np.append(rng.random(len(plugs)) < 0.15, False)[owner]     # (owner -1: none)
+        dots = smoothstep(-c.px, c.px, plug_sd) * w * np.where(kept, 1.0, 1 - centre)
         b.f["scale"] = np.maximum(b.f["scale"], 0.6 * dots)
         b.f["height"] += 0.05 * dots
     b.outline(w, 0.35)
