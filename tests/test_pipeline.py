@@ -397,11 +397,14 @@ def test_closeups_of_small_lesions_range_from_macro_to_context(rng):
 
 def test_closeups_above_one_show_part_of_a_large_lesion(renderer, rng):
     """closeup_fraction above 1 asks for a frame smaller than the lesion: a large disc
-    seen square-on then runs off every edge of the frame and covers nearly all of it
-    (asked well above 1.5: up to about 1.5 the fifth of a frame that a close-up's aim
-    may stray can leave one edge clear of a disc)."""
+    seen square-on then runs off every edge of the frame and covers nearly all of it.
+    The fraction is of the frame's short side squared; the renderer's frame is 4:3 and
+    the aim may stray a fifth of the short side on each surface axis, so the far long
+    edge lies up to (2/3 + 0.2 * sqrt(2)) of the short side from the disc's centre:
+    inside the disc only for fractions above about 2.84."""
     from glsynth.pipeline import views as V
-    frac = rng.uniform(2.2, 4.0)
+    assert renderer.width * 3 == renderer.height * 4
+    frac = rng.uniform(3.0, 4.5)
     v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0",
                      "views.closeup_min_width=[0.015, 0.015]").views
     r = rng.uniform(0.04, 0.08)
