@@ -44,7 +44,9 @@ flat out int g_face;
 in vec2 in_h0;
 in vec2 in_h1;
 in vec2 in_h2;
+in vec3 in_ht;
 flat out mat3x2 g_hair;   // hair-flow coordinates of the corners (skin.frag)
+flat out vec3 g_hair_t;   // the surface a unit of t covers at the corners
 #endif
 
 // Sets every output but gl_Position and g_depth; returns this corner's UV.
@@ -57,6 +59,7 @@ vec2 emit_face() {
     g_face = gl_VertexID / 3;
 #ifdef HAIR_COORDS
     g_hair = mat3x2(in_h0, in_h1, in_h2);
+    g_hair_t = in_ht;
 #endif
     return g_uv[k];
 }

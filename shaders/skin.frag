@@ -76,6 +76,7 @@ uniform float u_crease_period;
 uniform float u_crease_size;
 uniform float u_coarse_crease_scale;   // the tile's second reading (detail.COARSE_CREASE_SCALE)
 flat in mat3x2 g_hair;             // hair-flow coordinates (scene units) of the corners
+flat in vec3 g_hair_t;             // the surface a unit of t covers at the corners (smooth)
 #endif
 #include "surface.glsl"
 #include "light.glsl"
@@ -130,10 +131,10 @@ float value_noise(vec2 p) {
 // pixel spans its width, so that a far view keeps the texture's colour. Straight hair
 // runs 40 widths along the flow before it changes; coily hair (u_hair_curl 1) is a mat
 // of short, bent strands. Where the hair-flow coordinates stretch by ``stretched``
-// (the cylinder they come from turns away from the skull's dome: ~2-3 over most of a
-// scalp, more at the crown) single hairs would be drawn that much too long, so they
-// fade out from 1.5; a lock or clump drawn a few times longer or narrower is still
-// one, so those keep to 4.
+// (the skull's s is its true arc, so only where the head's capsule leaves the
+// surface: nape, ears) single hairs would be drawn that much too long, so they fade
+// out from 1.5; a lock or clump drawn a few times longer or narrower is still one, so
+// those keep to 4. (t's scale, which narrows towards the crown, scalp_hair handles.)
 const float STRAND_AMP[5] = float[5](0.55, 0.385, 0.27, 0.45, 0.3);
 float scalp_strands(vec2 st, float px, float stretched) {
     float keep_fine = 1.0 - smoothstep(1.5, 3.0, stretched);
@@ -151,6 +152,25 @@ float scalp_strands(vec2 st, float px, float stretched) {
         width *= 3.5;
     }
     return v;
+}
+
+// Scalp strands (scalp_strands) at hair-flow point st (metres) where a unit of t covers
+// lt of surface (interpolated from the corners': per face it would jump): t narrows towards the crown as meridians do, and strands drawn on it
+// would narrow to nothing. So t is rescaled by the two powers of sqrt(2) that bracket
+// lt, each drawing strands at most sqrt(2) too wide or narrow, and the two sets are
+// cross-faded (kept at full contrast: they are independent noise of mean 0).
+float scalp_hair(vec2 st, float px, float stretched_s, float lt) {
+    float level = -2.0 * log2(clamp(lt, 1e-4, 1e4));
+    float j0 = floor(level);
+    float w1 = smoothstep(0.0, 1.0, level - j0);
+    float v = 0.0;
+    for (int i = 0; i < 2; ++i) {
+        float w = i == 0 ? 1.0 - w1 : w1;
+        float j = j0 + float(i);
+        if (w > 0.001)   // each scale its own strands: offsets far beyond a lattice cell
+            v += w * scalp_strands(vec2(st.x, st.y * exp2(-0.5 * j)) + vec2(0.71, 0.37) * j, px, stretched_s);
+    }
+    return v / sqrt((1.0 - w1) * (1.0 - w1) + w1 * w1);
 }
 
 // A hair fibre along unit vector fibre lit from l, seen from v (Kajiya-Kay): diffuse by
@@ -323,9 +343,8 @@ void main() {
         mass_fibre /= max(length(mass_fibre), 1e-20);
         // how much the hair-flow coordinates stretch here (a unit of them covers
         // that many of surface, or a fraction)
-        float ls = length(t_s), lt = length(t_t);
-        float stretched = max(max(ls, lt), 1.0 / max(min(ls, lt), 1e-20));
-        strands = scalp_strands(hc / u_unit, footprint / u_unit, stretched);
+        float ls = length(t_s);
+        strands = scalp_hair(hc / u_unit, footprint / u_unit, max(ls, 1.0 / max(ls, 1e-20)), dot(g_hair_t, b));
     }
     // wrinkles: the crease tile's grooves run along its x, laid along t (across the hair
     // flow: around a limb, across the forehead and neck). Fine ones where the relief

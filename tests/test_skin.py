@@ -10,7 +10,7 @@ import trimesh
 import glsynth as gs
 from glsynth import diff
 from glsynth.assets import detail
-from glsynth.assets.hairflow import hair_coordinates, hair_flow_quality
+from glsynth.assets.hairflow import hair_coordinates, hair_flow_quality, t_scale_at_corners
 from glsynth.lighting import Material, PointLight
 from glsynth.mesh import SkinSurface, grid_faces
 from shapes import box, sphere, textured_view
@@ -173,6 +173,34 @@ def test_scalp_hair_shows_strands_up_close_and_none_far_away(renderer, rng):
         assert _lap_energy(imgs[0]) < _lap_energy(imgs[1]) + 1.0, (w, _lap_energy(imgs[0]))
 
 
+def test_scalp_strands_keep_their_width_where_t_narrows(renderer, rng):
+    """Towards the crown a unit of the hair-flow t covers ever less scalp (meridians
+    converge). Strands keep their physical width there: with t scaled by a random
+    factor from 1/6 to 6 the close-up's hair looks as it does at 1, about as much
+    gradient across the strands and still running along them (faded out, as they
+    were at t scaled by 4.5, the gradient fell to 0.44)."""
+    size = 1024
+    scalp = np.full((size, size), 255, np.uint8)
+    no_weight = np.zeros((size, size), np.uint8)
+    cam = _look_down(renderer, 0.015)                  # 0.06 mm per pixel
+    lights = [PointLight(np.asarray(cam.eye) + [0.01, 0.015, 0], ambient=0.25, diffuse=0.9)]
+
+    def gradients(t_scale):
+        mesh = _skin_plane(rng, weight=no_weight, tex_size=size, scalp=scalp)
+        hc = np.asarray(mesh.skin.hair_coords).copy()
+        hc[..., 1] *= t_scale
+        mesh.skin = dataclasses.replace(mesh.skin, hair_coords=hc)
+        lum = renderer.render(mesh, cam, passes=("rgb",), lights=lights,
+                              material=Material(model="skin"))["rgb"].mean(-1)
+        return np.abs(np.diff(lum, axis=1)).mean(), np.abs(np.diff(lum, axis=0)).mean()
+
+    gx1, gy1 = gradients(1.0)
+    for t_scale in (np.exp(rng.uniform(np.log(2.5), np.log(6))), np.exp(-rng.uniform(np.log(2.5), np.log(6)))):
+        gx, gy = gradients(t_scale)
+        assert 0.6 < gy / gy1 < 1.6, (t_scale, gy / gy1)
+        assert gy > 2 * gx, t_scale
+
+
 def test_a_flash_at_the_lens_gives_no_nan(renderer, rng):
     """The light exactly at the eye makes v.h round above 1 (Fresnel's base below 0)."""
     mesh = _skin_plane(rng)
@@ -232,6 +260,55 @@ def test_hair_coordinates_follow_a_limb_isometrically():
     assert np.abs(np.einsum("nk,nk->n", J[..., 0], J[..., 1])).max() < 0.05
     # +s runs along the limb, away from the trunk side's... axis (here +-y): pure y
     assert np.allclose(np.abs(J[..., 0][:, 1]), 1, atol=0.03)
+
+
+def test_scalp_hair_falls_from_the_crown_at_its_own_size(rng):
+    """A head (a sphere with a neck below it) gets capsule coordinates: over the skull
+    +s runs away from the crown along the surface at the tile's size (a vertical
+    cylinder stretched it by 1 / cos of the latitude), t keeps its size at the skull's
+    widest and narrows towards the crown as meridians do, and s runs on down the neck
+    without a jump."""
+    r = rng.uniform(0.075, 0.1)
+    centre = np.array([rng.uniform(-0.05, 0.05), rng.uniform(1.5, 1.7), rng.uniform(-0.05, 0.05)])
+    skull = trimesh.creation.icosphere(subdivisions=4, radius=r)
+    neck = trimesh.creation.cylinder(radius=0.5 * r, height=1.2 * r, sections=32)
+    neck.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    neck.apply_translation([0.0, -1.2 * r, 0.0])
+    head = trimesh.util.concatenate([skull, neck])
+    v, f = np.asarray(head.vertices) + centre, np.asarray(head.faces)
+    hc = hair_coordinates(v, f, np.full(len(v), 1))
+    c = v[f].mean(1) - centre
+    polar = np.degrees(np.arctan2(np.linalg.norm(c[:, [0, 2]], axis=1), c[:, 1]))
+    on_skull = np.arange(len(f)) < len(skull.faces)
+    h1, h2 = hc[:, 1] - hc[:, 0], hc[:, 2] - hc[:, 0]
+    ok = np.abs(h1[:, 0] * h2[:, 1] - h1[:, 1] * h2[:, 0]) > 1e-12
+    cap = on_skull & ok & (polar > 15) & (polar < 85)
+    J = _surface_per_hair_coordinate(v, f[cap], hc[cap])
+    ls, lt = np.linalg.norm(J[..., 0], axis=-1), np.linalg.norm(J[..., 1], axis=-1)
+    assert np.abs(ls - 1).max() < 0.05, np.abs(ls - 1).max()
+    # t: a unit covers sin(polar) of it (narrowing towards the crown, full at the widest)
+    assert np.abs(lt - np.sin(np.radians(polar[cap]))).max() < 0.05
+    away = c[cap] / np.linalg.norm(c[cap], axis=1, keepdims=True)
+    down_surface = np.array([0.0, -1.0, 0.0]) + away * away[:, 1:2]      # along the meridian
+    down_surface /= np.linalg.norm(down_surface, axis=1, keepdims=True)
+    assert np.einsum("nk,nk->n", J[..., 0] / ls[:, None], down_surface).min() > 0.97
+    # the same scale of t at the corners, the mean of the faces round each vertex: one
+    # value per vertex, whichever face it is read from (it must not jump at edges)
+    corner = t_scale_at_corners(v, f, hc)
+    per_vertex = np.full(len(v), np.nan)
+    per_vertex[f.ravel()] = corner.ravel()
+    assert np.allclose(per_vertex[f], corner)
+    pv = v[f[cap]] - centre
+    corner_polar = np.arctan2(np.linalg.norm(pv[..., [0, 2]], axis=-1), pv[..., 1])
+    assert np.abs(corner[cap] - np.sin(corner_polar)).max() < 0.05
+    # no seam between the skull and the neck: the skull's rim and the neck's top edge
+    # (where they meet at the same radius below the equator) carry close s
+    s_skull = hc[on_skull].reshape(-1, 2)[:, 0]
+    assert abs(s_skull.min()) < 0.05 * r            # the crown is where s starts
+    neck_s = hc[~on_skull].reshape(-1, 2)[:, 0]
+    neck_y = v[f[~on_skull]].reshape(-1, 3)[:, 1] - centre[1]
+    top = neck_y > neck_y.max() - 1e-9
+    assert np.allclose(neck_s[top], r * np.pi / 2 - neck_y[top], atol=1e-6 * r)
 
 
 def test_hair_fades_where_the_tile_would_stretch(rng):

@@ -17,6 +17,7 @@ import moderngl
 import numpy as np
 
 from ..assets.detail import COARSE_CREASE_SCALE, MACRO_SCALE, MACRO_WEIGHT
+from ..assets.hairflow import t_scale_at_corners
 from ..camera import Camera
 from ..errors import InputError
 from ..lighting import FALLOFF_NEAREST, Material, PointLight, check_lights
@@ -204,7 +205,9 @@ class _MeshOnGPU:
         skin = mesh.skin
         hair = None
         if skin is not None and skin.hair_coords is not None:  # every corner carries its face's
-            hair = np.repeat(np.asarray(skin.hair_coords, np.float32).reshape(n, 6), 3, axis=0).tobytes()
+            hc = np.asarray(skin.hair_coords, np.float32)
+            t_scale = t_scale_at_corners(mesh.vertices, mesh.faces, hc)
+            hair = np.repeat(np.concatenate([hc.reshape(n, 6), t_scale], axis=1), 3, axis=0).tobytes()
         return {"corners": np.repeat(face, 3, axis=0).tobytes(), "count": 3 * n, "texels": texels,
                 "chunks": _MeshOnGPU._chunk_boxes(corners), "hair": hair}
 
@@ -267,8 +270,10 @@ class _MeshOnGPU:
             attrs = [a for a in self._LAYOUT if a in prog]
             fmt = " ".join(f if a in attrs else f.replace("f", "x4") for a, f in self._LAYOUT.items())
             buffers = [(self.vbo, fmt, *attrs)]
-            if "in_h0" in prog:  # hair-flow coordinates live in a buffer of their own
-                buffers.append((self.hair_vbo, "2f 2f 2f", "in_h0", "in_h1", "in_h2"))
+            if "in_h0" in prog:  # hair-flow coordinates (and t's scale) live in a buffer of their own
+                scale = "in_ht" in prog
+                buffers.append((self.hair_vbo, "2f 2f 2f " + ("3f" if scale else "3x4"),
+                                "in_h0", "in_h1", "in_h2", *(("in_ht",) if scale else ())))
             vao = self.vaos[name] = self.ctx.vertex_array(prog, buffers)
         return vao
 
