@@ -155,20 +155,22 @@ float scalp_strands(vec2 st, float px, float stretched) {
 }
 
 // Scalp strands (scalp_strands) at hair-flow point st (metres) where a unit of t covers
-// lt of surface (interpolated from the corners': per face it would jump): t narrows towards the crown as meridians do, and strands drawn on it
-// would narrow to nothing. So t is rescaled by the two powers of sqrt(2) that bracket
-// lt, each drawing strands at most sqrt(2) too wide or narrow, and the two sets are
-// cross-faded (kept at full contrast: they are independent noise of mean 0).
+// lt of surface (interpolated from the corners': per face it would jump). t narrows
+// towards the crown as meridians do, and strands drawn on it would narrow to nothing,
+// so t is rescaled by the two powers of sqrt(2) that bracket lt, each drawing strands
+// at most sqrt(2) too wide or narrow, and the two sets are cross-faded (kept at full
+// contrast: they are independent noise of mean 0). (lt is clamped where a degenerate
+// face would scale t so far that float noise coordinates lose their fraction.)
 float scalp_hair(vec2 st, float px, float stretched_s, float lt) {
-    float level = -2.0 * log2(clamp(lt, 1e-4, 1e4));
+    float level = -2.0 * log2(clamp(lt, 1e-3, 16.0));
     float j0 = floor(level);
     float w1 = smoothstep(0.0, 1.0, level - j0);
     float v = 0.0;
     for (int i = 0; i < 2; ++i) {
         float w = i == 0 ? 1.0 - w1 : w1;
         float j = j0 + float(i);
-        if (w > 0.001)   // each scale its own strands: offsets far beyond a lattice cell
-            v += w * scalp_strands(vec2(st.x, st.y * exp2(-0.5 * j)) + vec2(0.71, 0.37) * j, px, stretched_s);
+        if (w > 0.001)   // each scale its own strands: offsets of hundreds of hairs
+            v += w * scalp_strands(vec2(st.x, st.y * exp2(-0.5 * j)) + vec2(0.023, 0.041) * j, px, stretched_s);
     }
     return v / sqrt((1.0 - w1) * (1.0 - w1) + w1 * w1);
 }

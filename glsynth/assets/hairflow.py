@@ -11,12 +11,12 @@ the centre of the sphere fitted to its upper half, the vertical cylinder of that
 sphere's radius; above it, the sphere, where ``s`` is the arc from the crown (the
 sphere's top) so that scalp hair falls from the crown and keeps its size over the
 skull, where a cylinder stretched it up to several times (its ``t`` still narrows
-towards the crown, as meridians do; the shader draws scalp strands at the scale
-that ``t`` has there). Every face takes the
-frame of its first corner's part, and a face across the cylinder's cut has its angles
-unwrapped, so coordinates are continuous inside each part; at part borders and along
-one cut per part (on the side facing the trunk, or the back) the hair pattern restarts,
-which at hair scale reads as nothing in particular.
+towards the crown, as meridians do; the shader draws scalp strands at the scale that
+``t`` has there, :func:`t_scale_at_corners`). Every face takes the frame of its first
+corner's part, and a face across the cylinder's cut has its angles unwrapped, so
+coordinates are continuous inside each part; at part borders and along one cut per
+part (on the side facing the trunk, or the back) the hair pattern restarts, which at
+hair scale reads as nothing in particular.
 Where a part's surface turns across its axis (shoulder tops, the crown, fingers) the
 cylinder stretches the tile; :func:`hair_flow_quality` finds those places, and body
 painting leaves them without hair rather than draw strands several times too long.
