@@ -718,12 +718,12 @@ def _pityriasis_rosea(b, rng, R):
             r = R * rng.uniform(0.06, 0.14)
             ovals.append((r, c.shape("oval", r, centre=p, aspect=0.55, angle=axis,
                                      irregular=0.05, warp=0.03)))
-    salmon = rng.uniform(2.0, 3.2)
+    salmon = rng.uniform(1.2, 2.2)
     for r, sd in ovals:
         w = b.weight(sd, r * 0.2, "ill-defined")
         # the edge is the reddest; the centre clears towards the skin's own colour
         ring = 1 - 0.75 * smoothstep(r * 0.1, r * 0.55, sd)
-        b.erythema(w * ring, salmon, 0.75)
+        b.erythema(w * ring, salmon, 0.95)
         b.f["melanin"] *= 1 + 0.2 * w
         # a fine collarette just inside the edge, free towards the centre: a thin
         # translucent rim, not flakes (at this size they were a speckle of dots)
