@@ -343,8 +343,8 @@ void main() {
         float dl = length(down);
         mass_fibre = mix(fibre_dir, down / max(dl, 1e-20), smoothstep(0.15, 0.4, dl));
         mass_fibre /= max(length(mass_fibre), 1e-20);
-        // how much the hair-flow coordinates stretch here (a unit of them covers
-        // that many of surface, or a fraction)
+        // how much s stretches here (a unit of it covers that much surface, or a
+        // fraction); t's scale comes smooth from the corners
         float ls = length(t_s);
         strands = scalp_hair(hc / u_unit, footprint / u_unit, max(ls, 1.0 / max(ls, 1e-20)), dot(g_hair_t, b));
     }

@@ -98,7 +98,7 @@ def hair_coordinates(vertices, faces, labels) -> np.ndarray:
         s = d @ axis
         if k == HEAD:   # the skull's cap: the arc from the crown, meeting the cylinder's s
             above = s < 0
-            polar = np.arctan2(np.linalg.norm(d - d[..., 1:2] * [0.0, 1.0, 0.0], axis=-1), d[..., 1])
+            polar = np.arctan2(np.hypot(d[..., 0], d[..., 2]), d[..., 1])
             s = np.where(above, radius * polar, radius * np.pi / 2 + s)
         phi = np.arctan2(d @ e2, d @ e1)
         # unwrap faces across the cut at phi = +-pi
