@@ -370,12 +370,15 @@ class PhotoConfig:
 
 @dataclass
 class BackgroundsConfig:
-    """What the views are composited over."""
+    """What surrounds the body in the views: behind it, and at the frame's edge."""
     source: str = key("procedural", "'procedural' or a folder of background images")
     count: int = key(24, "procedural backgrounds to make", within=at_least(1))
     blur: list = key([0.0, 3.0], "Gaussian blur of the background (px)", pair=between(0, 50))
     clinical: float = key(0.6, "share of procedural backgrounds that are clinical backdrops (drapes, "
                           "sheets, couch paper, plain walls, clothing, black cloth; else rooms)", within=between(0, 1))
+    edges: float = key(0.25, "share of close-up and regional views with gloved fingers, the patient's "
+                       "clothing or a drape reaching in from the frame's edge (assets/occluders.py)",
+                       within=between(0, 1))
 
 
 @dataclass

@@ -35,9 +35,10 @@ def image_lesion_folder(root, n=3, seed=0):
 
 @pytest.fixture(scope="module")
 def dataset_args(tmp_path_factory):
-    """SMALL with lesion photographs: the dataset below exercises paste + deep blend."""
+    """SMALL with lesion photographs: the dataset below exercises paste + deep blend, and
+    gloves, clothing or drapes at the edge of every close-up and regional view."""
     lesions = image_lesion_folder(tmp_path_factory.mktemp("lesions"))
-    return SMALL + [f"lesions.source={lesions}", "lesions.layout=pairs"]
+    return SMALL + [f"lesions.source={lesions}", "lesions.layout=pairs", "backgrounds.edges=1"]
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +56,7 @@ def _samples(out):
 def test_every_sample_is_consistent(dataset):
     ids = _samples(dataset)
     assert len(ids) == 4
-    seen_lesion = False
+    seen_lesion, edges = False, []
     for sid in ids:
         meta = json.load(open(os.path.join(dataset, "targets", f"{sid}.json")))
         img = read_rgb(os.path.join(dataset, "images", f"{sid}.png"))
@@ -88,9 +89,13 @@ def test_every_sample_is_consistent(dataset):
             from glsynth.dataformat import GROUP_NAMES
             assert l["source"]["body_region"] in set(GROUP_NAMES.values()) - {"background"}
         assert (meta["fractions"]["skin"]) >= 0.1
+        edges.append(meta["background"]["edge"])
+        if edges[-1] is not None:   # its pixels are background in every label (checked above)
+            assert meta["camera"]["framing"] != "wild" and edges[-1]["kind"] in ("glove", "clothing", "drape")
         for key in ("eye", "target", "up", "fov_deg", "w", "point", "normal", "intrinsics"):
             assert key in meta["camera"]
     assert seen_lesion, "no lesion visible in any view"
+    assert any(e is not None for e in edges), edges
 
 
 def test_coco_loads_with_pycocotools(dataset):

@@ -175,6 +175,63 @@ def fabric_colour(rng) -> np.ndarray:
     return np.clip(np.rint(lab_to_srgb(lab) * 255), 0, 255)
 
 
+def backdrop_layout(kind: str, rng) -> dict:
+    """A clinical backdrop of ``kind`` (a BACKDROP_SHARES key): its colour, folds, fold
+    direction and light, and for some fabrics a stripe or check print."""
+    if kind == "fabric":
+        colour = fabric_colour(rng)
+    else:
+        table = BACKDROPS[kind]
+        colour = np.clip(np.array(table[rng.integers(len(table))]) + rng.normal(0, 8, 3), 0, 255)
+    out = {"kind": kind, "colour": tuple(int(c) for c in colour),
+           "folds": float(rng.uniform(0.3, 1.0)), "angle": float(rng.uniform(0, 180)),
+           "light": float(rng.uniform(0, 360))}
+    if kind == "fabric" and rng.random() < 0.4:   # a striped or checked cloth
+        out.update(pattern=str(rng.choice(["stripes", "check"])),
+                   colour2=tuple(int(c) for c in fabric_colour(rng)),
+                   period=float(np.exp(rng.uniform(np.log(0.01), np.log(0.12)))),
+                   duty=float(rng.uniform(0.15, 0.6)))
+    return out
+
+
+def backdrop_image(m: dict, n: int, rng) -> np.ndarray:
+    """An n x n uint8 image of backdrop ``m`` (see backdrop_layout): a colour lit across
+    by folds (a height field's slope towards the light), with the weave or grain of the
+    material and sensor noise."""
+    yy, xx = np.mgrid[0:n, 0:n].astype(np.float32) / n
+    a = np.radians(m["angle"])
+    u = xx * np.cos(a) + yy * np.sin(a)
+    height = np.zeros((n, n), np.float32)
+    if m["kind"] in CLOTH_BACKDROPS:
+        # folds: ridges along one direction, bent by noise
+        bend = 0.15 * fractal_noise(rng, (n, n), n / 2, octaves=2)
+        height += m["folds"] * (np.sin(2 * np.pi * (u + bend) * rng.uniform(2, 5))
+                                + 0.5 * fractal_noise(rng, (n, n), n / 5, octaves=3))
+    elif m["kind"] == "paper":
+        crinkle = np.abs(fractal_noise(rng, (n, n), n / 8, octaves=4))
+        height += 0.15 * (1 - np.clip(crinkle * 2, 0, 1))
+    gy, gx = np.gradient(height * n / 40.0)
+    la = np.radians(m["light"])
+    shade = 1 + 0.35 * np.clip(gx * np.cos(la) + gy * np.sin(la), -2, 2)
+    shade *= 1 - 0.25 * np.hypot(xx - 0.5, yy - 0.5)                  # light falls off
+    img = np.array(m["colour"], np.float32)[None, None] * shade[..., None]
+    if "pattern" in m:   # the print follows the cloth (the fold direction)
+        mark = ((u / m["period"]) % 1.0 < m["duty"]).astype(np.float32)
+        if m["pattern"] == "check":
+            across = -xx * np.sin(a) + yy * np.cos(a)
+            mark = np.maximum(mark, ((across / m["period"]) % 1.0 < m["duty"]).astype(np.float32))
+        mark = cv2.GaussianBlur(mark, (0, 0), 0.7)[..., None]
+        img = img * (1 - mark) + np.array(m["colour2"], np.float32) * shade[..., None] * mark
+    if m["kind"] in CLOTH_BACKDROPS:                                  # the weave
+        period = rng.uniform(2.5, 5.0)
+        weave = np.sin(2 * np.pi * xx * n / period) * np.sin(2 * np.pi * yy * n / period)
+        img *= (1 + 0.04 * weave)[..., None]
+    else:
+        img += 3.0 * fractal_noise(rng, (n, n), 2.0, octaves=2)[..., None]
+    img = cv2.GaussianBlur(img, (0, 0), 0.6) + 1.5 * rng.standard_normal(img.shape, np.float32)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
 class ProceduralBackgrounds(_Backgrounds):
     """`n` seeded backgrounds, size x size, rendered on access (image i depends only on
     (seed, first + i)): indoor rooms and, with probability ``clinical``, the backdrops of
@@ -201,20 +258,7 @@ class ProceduralBackgrounds(_Backgrounds):
         if rng.random() >= self.clinical:
             return None
         kind = str(rng.choice(list(BACKDROP_SHARES), p=list(BACKDROP_SHARES.values())))
-        if kind == "fabric":
-            colour = fabric_colour(rng)
-        else:
-            table = BACKDROPS[kind]
-            colour = np.clip(np.array(table[rng.integers(len(table))]) + rng.normal(0, 8, 3), 0, 255)
-        out = {"kind": kind, "colour": tuple(int(c) for c in colour),
-               "folds": float(rng.uniform(0.3, 1.0)), "angle": float(rng.uniform(0, 180)),
-               "light": float(rng.uniform(0, 360))}
-        if kind == "fabric" and rng.random() < 0.4:   # a striped or checked cloth
-            out.update(pattern=str(rng.choice(["stripes", "check"])),
-                       colour2=tuple(int(c) for c in fabric_colour(rng)),
-                       period=float(np.exp(rng.uniform(np.log(0.01), np.log(0.12)))),
-                       duty=float(rng.uniform(0.15, 0.6)))
-        return out
+        return backdrop_layout(kind, rng)
 
     def _layout(self, i):
         rng = np.random.default_rng([self.seed, i, 0])
@@ -232,7 +276,7 @@ class ProceduralBackgrounds(_Backgrounds):
         m, n = self.meta[i], self.size
         rng = np.random.default_rng([self.seed, m["index"], 1])
         if "kind" in m:
-            return self._backdrop_image(m, rng)
+            return backdrop_image(m, self.size, rng)
         img = np.empty((n, n, 3), np.float32)
         yy, xx = np.mgrid[0:n, 0:n].astype(np.float32) / n
         hz = int(m["horizon"] * n)
@@ -256,43 +300,6 @@ class ProceduralBackgrounds(_Backgrounds):
         for _ in range(m["furniture"]):
             self._furniture(img, rng, hz)
         img = cv2.GaussianBlur(img, (0, 0), 0.8) + 1.5 * rng.standard_normal(img.shape, np.float32)
-        return np.clip(np.rint(img), 0, 255).astype(np.uint8)
-
-    def _backdrop_image(self, m, rng):
-        """Cloth, paper or wall: a colour lit across by folds (a height field's slope
-        towards the light), with the weave or grain of the material and sensor noise."""
-        n = self.size
-        yy, xx = np.mgrid[0:n, 0:n].astype(np.float32) / n
-        a = np.radians(m["angle"])
-        u = xx * np.cos(a) + yy * np.sin(a)
-        height = np.zeros((n, n), np.float32)
-        if m["kind"] in CLOTH_BACKDROPS:
-            # folds: ridges along one direction, bent by noise
-            bend = 0.15 * fractal_noise(rng, (n, n), n / 2, octaves=2)
-            height += m["folds"] * (np.sin(2 * np.pi * (u + bend) * rng.uniform(2, 5))
-                                    + 0.5 * fractal_noise(rng, (n, n), n / 5, octaves=3))
-        elif m["kind"] == "paper":
-            crinkle = np.abs(fractal_noise(rng, (n, n), n / 8, octaves=4))
-            height += 0.15 * (1 - np.clip(crinkle * 2, 0, 1))
-        gy, gx = np.gradient(height * n / 40.0)
-        la = np.radians(m["light"])
-        shade = 1 + 0.35 * np.clip(gx * np.cos(la) + gy * np.sin(la), -2, 2)
-        shade *= 1 - 0.25 * np.hypot(xx - 0.5, yy - 0.5)                  # light falls off
-        img = np.array(m["colour"], np.float32)[None, None] * shade[..., None]
-        if "pattern" in m:   # the print follows the cloth (the fold direction)
-            mark = ((u / m["period"]) % 1.0 < m["duty"]).astype(np.float32)
-            if m["pattern"] == "check":
-                across = -xx * np.sin(a) + yy * np.cos(a)
-                mark = np.maximum(mark, ((across / m["period"]) % 1.0 < m["duty"]).astype(np.float32))
-            mark = cv2.GaussianBlur(mark, (0, 0), 0.7)[..., None]
-            img = img * (1 - mark) + np.array(m["colour2"], np.float32) * shade[..., None] * mark
-        if m["kind"] in CLOTH_BACKDROPS:                                  # the weave
-            period = rng.uniform(2.5, 5.0)
-            weave = np.sin(2 * np.pi * xx * n / period) * np.sin(2 * np.pi * yy * n / period)
-            img *= (1 + 0.04 * weave)[..., None]
-        else:
-            img += 3.0 * fractal_noise(rng, (n, n), 2.0, octaves=2)[..., None]
-        img = cv2.GaussianBlur(img, (0, 0), 0.6) + 1.5 * rng.standard_normal(img.shape, np.float32)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
     def _window(self, img, rng, hz, m):

@@ -15,11 +15,12 @@ import cv2
 import numpy as np
 
 from ..assets.backgrounds import NEAR_BACKDROPS
+from ..assets.occluders import Occluder, sample_occluder
 from ..camera import Camera
-from ..dataformat import SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN
+from ..dataformat import SEMANTIC_BACKGROUND, SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN
 from ..errors import GlsynthError
 from ..lighting import Material, PointLight, ambient_gain, beam_exponent_for, light_colour
-from .photo import SRGB_TO_LINEAR, linear_to_srgb8
+from .photo import SRGB_TO_LINEAR, linear_to_srgb8, srgb_to_linear
 
 
 @dataclass
@@ -432,6 +433,62 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
     elif "nevi" in outputs:
         layers["nevi"] = np.zeros(body_px.shape, np.uint16)
     return layers
+
+
+def edge_occluder(scene: ViewScene, shape, rng) -> Occluder:
+    """Gloved fingers, clothing or a drape at the frame's edge, drawn at the scale of
+    the skin the camera focuses on and lit from the view's lights (each weighted by its
+    diffuse strength; a flash lights from the camera)."""
+    cam = scene.camera
+    rot = cam.view_matrix()[:3, :3]
+    towards = np.zeros(3)
+    for light in scene.lights:
+        d = rot @ (np.asarray(light.position) - np.asarray(cam.target))
+        towards += np.mean(light.diffuse) * d / max(np.linalg.norm(d), 1e-9)
+    towards = towards / np.linalg.norm(towards) if np.linalg.norm(towards) > 1e-9 else np.array([0, 0, 1.0])
+    focus = float(np.linalg.norm(np.subtract(cam.target, cam.eye)))
+    mm_per_px = 1000 * focus / float(cam.intrinsics()[1, 1])
+    return sample_occluder(rng, shape, mm_per_px, towards)
+
+
+def draw_occluder(image: np.ndarray, occluder: Occluder) -> np.ndarray:
+    """The occluder and its shadow on an 8-bit sRGB image, mixed in linear light inside
+    its box (a new image)."""
+    y0, y1, x0, x1 = occluder.box
+    out = image.copy()
+    under = srgb_to_linear(image[y0:y1, x0:x1]) * occluder.shadow[..., None]
+    top = srgb_to_linear(occluder.rgb)
+    out[y0:y1, x0:x1] = linear_to_srgb8(under + (top - under) * occluder.alpha[..., None])
+    return out
+
+
+def occlude(layers: dict, occluder: Occluder, v) -> bool:
+    """Take the occluder's pixels out of the body's labels, in place: they become
+    background (the body's surface is not seen there; the paper's 3-class target counts
+    them as non-skin), and instances, anatomy, nevi, UV, normals and face ids are cleared
+    and depth set to -1 there, as everywhere off the body.
+    Returns False, changing nothing, when the views' skin or lesion minimum, or 70% of
+    the lesion pixels, would not survive."""
+    hidden = occluder.mask
+    sem = layers["semantic"]
+    lesion_before = np.count_nonzero(sem == SEMANTIC_LESION)
+    kept = ~hidden
+    n = sem.size
+    skin = np.count_nonzero((sem == SEMANTIC_SKIN) & kept) / n
+    lesion = np.count_nonzero((sem == SEMANTIC_LESION) & kept)
+    if skin < v.min_skin or lesion / n < v.min_lesion or lesion < 0.7 * lesion_before:
+        return False
+    np.putmask(sem, hidden, SEMANTIC_BACKGROUND)
+    clear = {"instances": 0, "anatomy": 0, "nevi": 0, "face_id": -1, "depth": -1, "uv": -1, "normals": 0}
+    for name, value in clear.items():
+        if name in layers:
+            layers[name][hidden] = value
+    layers["regions"] = instance_regions(layers["instances"])
+    if "nevi_boxes" in layers:
+        layers["nevi_boxes"] = {k: r["box"] for k, r in instance_regions(layers["nevi"]).items()}
+    counts = {"lesion": lesion, "nonskin": np.count_nonzero(sem == SEMANTIC_NONSKIN), "skin": skin * n}
+    layers["fractions"] = {name: float(c / n) for name, c in counts.items()}
+    return True
 
 
 def camera_normals(out, mesh, camera) -> np.ndarray:
