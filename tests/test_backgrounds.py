@@ -116,7 +116,7 @@ def test_procedural_backgrounds_look_like_rooms():
 
 def test_wide_blur_at_reduced_resolution_matches_the_full_blur(rng):
     import cv2
-    from glsynth.assets.backgrounds import _smooth
+    from glsynth.assets.backgrounds import wide_blur
     for _ in range(20):
         h, w = rng.integers(100, 600, 2)
         mask = np.zeros((h, w), np.float32)
@@ -124,7 +124,7 @@ def test_wide_blur_at_reduced_resolution_matches_the_full_blur(rng):
         mask[y0:y0 + rng.integers(5, h // 2), x0:x0 + rng.integers(5, w // 2)] = 1
         sigma = float(rng.uniform(4, 50))
         full = cv2.GaussianBlur(mask, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-        assert np.abs(_smooth(mask, sigma) - full).max() < 0.004, (sigma, h, w)
+        assert np.abs(wide_blur(mask, sigma) - full).max() < 0.004, (sigma, h, w)
 
 
 def test_fabric_comes_in_every_hue_skin_like_ones_included():

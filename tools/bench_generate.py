@@ -1,7 +1,7 @@
 """End-to-end generation throughput and blend cost, measured in one run.
 
     .venv/bin/python tools/bench_generate.py [--views 40] [--short 10] [--repeats 3] [--blend-steps 400]
-        [--workers 1,2] [--no-lesions] [--features]
+        [--workers 1,2] [--no-lesions] [--features] [--feature TEXT]
 
 1. Annotated 512x512 samples per second for the default config (bodies cached, lesions
    pasted and blended beforehand) with 1 and 2 worker processes, with the per-stage split
@@ -21,7 +21,8 @@
    2000 / core-ms).
 4. With ``--features``: the default targets with each realism feature of the default
    config turned off in turn (skin shading, micro-detail, clinical framing, flash,
-   shadows, MSAA, camera model, clinical backdrops), against the default row.
+   shadows, MSAA, camera model, clinical backdrops, frame-edge occluders), against the
+   default row; ``--feature TEXT``: only the rows whose name holds TEXT, and no other table.
 """
 from __future__ import annotations
 
@@ -106,6 +107,7 @@ FEATURES = (
     ("4x MSAA", ["views.multisample=0"]),
     ("camera model", ["photo.enabled=false"]),
     ("clinical backdrops (-> rooms)", ["backgrounds.clinical=0"]),
+    ("gloves, clothing and drapes at the frame's edge", ["backgrounds.edges=0"]),
 )
 
 
@@ -121,6 +123,8 @@ def _feature_costs(args, prepared):
     print("|---|---|---:|---:|---:|")
     views = [f"views.per_body={args.views}"]
     for name, overrides in FEATURES:
+        if args.feature and args.feature not in name:
+            continue
         on, off = [], []
         for _ in range(args.repeats):
             n, _, c, _ = _timed_run(views, 1, prepared)
@@ -143,12 +147,18 @@ def main(argv=None):
     ap.add_argument("--no-lesions", action="store_true", help="leave out the seconds-per-lesion table")
     ap.add_argument("--features", action="store_true",
                     help="also time the default targets with each realism feature turned off in turn")
+    ap.add_argument("--feature", default="",
+                    help="only the feature rows whose name holds this text, and no other table")
     args = ap.parse_args(argv)
     counts = tuple(int(n) for n in args.workers.split(","))
     base = [f"views.per_body={args.views}"]
 
     prepared = tempfile.mkdtemp(prefix="glsynth-prep-")
     generate(load_config(None, base + ["views.per_body=0"]), prepared)  # bodies, paste, blend
+    if args.feature:
+        _feature_costs(args, prepared)
+        shutil.rmtree(prepared)
+        return
 
     print("## Samples per second (512x512, default config, views stage incl. writing)\n")
     print(f"Steady state: the difference between runs of {2 * args.short} and {2 * args.views} samples; "

@@ -40,7 +40,7 @@ def fit_cover(img: np.ndarray, width: int, height: int) -> np.ndarray:
     return np.ascontiguousarray(img[y0:y0 + height, x0:x0 + width])
 
 
-def _smooth(field: np.ndarray, sigma: float) -> np.ndarray:
+def wide_blur(field: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian blur of a float32 field by a wide ``sigma`` (px), mirrored at the image
     edge, done at 1/f of the resolution (f = sigma // 8) and resized back: within 0.002
     of the full-resolution blur of a 0/1 mask, at 1/16 of its time for sigma = 43 px (a
@@ -313,7 +313,7 @@ class ProceduralBackgrounds(_Backgrounds):
         # Glow on the wall around the window.
         glow = np.zeros(img.shape[:2], np.float32)
         glow[y0:y0 + h, x0:x0 + w] = 1
-        img += 25 * _smooth(glow, n / 12)[..., None]
+        img += 25 * wide_blur(glow, n / 12)[..., None]
         frame = (250, 250, 248)
         t = max(2, n // 90)
         cv2.rectangle(img, (x0, y0), (x0 + w, y0 + h), frame, t)
@@ -377,7 +377,7 @@ class ProceduralBackgrounds(_Backgrounds):
             x = int(m["light_x"] * n)
             refl = np.zeros(img.shape[:2], np.float32)
             cv2.ellipse(refl, (x, hz + (n - hz) // 3), (n // 10, (n - hz) // 4), 0, 0, 360, 1.0, -1)
-            img += 20 * _smooth(refl, n / 30)[..., None]
+            img += 20 * wide_blur(refl, n / 30)[..., None]
 
     def _furniture(self, img, rng, hz):
         n = self.size

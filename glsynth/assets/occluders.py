@@ -7,8 +7,8 @@ direction, and casts a soft shadow on what lies beneath. It comes with its own e
 coverage: the pipeline takes ``mask`` (coverage >= 1/2) out of every body label, as it
 would for a foreground mesh.
 
-Gloved fingers are capsules (shaded as cylinders with rounded tips: Lambert plus a
-glossy highlight), with the stipple and creases of nitrile or latex; cloth is a
+Gloved fingers are flattened capsules narrowing to a round tip (Lambert plus a glossy
+highlight), with the stipple and knuckle wrinkles of nitrile or latex; cloth is a
 clinical backdrop (``backgrounds.backdrop_image``) cut along a wavy edge, with a rolled
 rim and, on clothing, a hem's stitches. Each is computed only in the box it covers or
 shades (a fifth to a half of the frame).
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .backgrounds import _smooth, backdrop_image, backdrop_layout
+from .backgrounds import backdrop_image, backdrop_layout, wide_blur
 from .lesions import fractal_noise
 
 # examination gloves (sRGB): nitrile blue, violet, black, white; latex cream; a
@@ -91,8 +91,8 @@ def _cast_shadow(alpha, light_xy, offset_px, softness_px, strength):
     away from the light and blurred, plus a little contact occlusion at its rim."""
     shift = np.float32([[1, 0, -light_xy[0] * offset_px], [0, 1, light_xy[1] * offset_px]])
     moved = cv2.warpAffine(alpha, shift, alpha.shape[::-1], borderMode=cv2.BORDER_REPLICATE)
-    cast = _smooth(moved, max(softness_px, 0.5))
-    contact = _smooth(alpha, max(softness_px / 3, 0.5))
+    cast = wide_blur(moved, max(softness_px, 0.5))
+    contact = wide_blur(alpha, max(softness_px / 3, 0.5))
     return np.clip(1 - strength * np.maximum(cast, 0.6 * contact), 0, 1).astype(np.float32)
 
 
