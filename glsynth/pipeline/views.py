@@ -467,16 +467,15 @@ def occlude(layers: dict, occluder: Occluder, v) -> bool:
     background (the body's surface is not seen there; the paper's 3-class target counts
     them as non-skin), and instances, anatomy, nevi, UV, normals and face ids are cleared
     and depth set to -1 there, as everywhere off the body.
-    Returns False, changing nothing, when the views' skin or lesion minimum, or 70% of
+    Returns False, changing nothing, when the view's skin or lesion minimum, or 70% of
     the lesion pixels, would not survive."""
     hidden = occluder.mask
     sem = layers["semantic"]
-    lesion_before = np.count_nonzero(sem == SEMANTIC_LESION)
     kept = ~hidden
     n = sem.size
     skin = np.count_nonzero((sem == SEMANTIC_SKIN) & kept) / n
     lesion = np.count_nonzero((sem == SEMANTIC_LESION) & kept)
-    if skin < v.min_skin or lesion / n < v.min_lesion or lesion < 0.7 * lesion_before:
+    if skin < v.min_skin or lesion / n < v.min_lesion or lesion < 0.7 * np.count_nonzero(sem == SEMANTIC_LESION):
         return False
     np.putmask(sem, hidden, SEMANTIC_BACKGROUND)
     clear = {"instances": 0, "anatomy": 0, "nevi": 0, "face_id": -1, "depth": -1, "uv": -1, "normals": 0}
@@ -486,8 +485,8 @@ def occlude(layers: dict, occluder: Occluder, v) -> bool:
     layers["regions"] = instance_regions(layers["instances"])
     if "nevi_boxes" in layers:
         layers["nevi_boxes"] = {k: r["box"] for k, r in instance_regions(layers["nevi"]).items()}
-    counts = {"lesion": lesion, "nonskin": np.count_nonzero(sem == SEMANTIC_NONSKIN), "skin": skin * n}
-    layers["fractions"] = {name: float(c / n) for name, c in counts.items()}
+    layers["fractions"] = {"lesion": float(lesion / n), "skin": float(skin),
+                           "nonskin": float(np.count_nonzero(sem == SEMANTIC_NONSKIN) / n)}
     return True
 
 
