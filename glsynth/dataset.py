@@ -17,8 +17,9 @@ class SynthDataset:
 
     ``targets``: any of semantic (uint8 0 bg, 1 skin, 2 lesion, 3 non-skin),
     three_class (0 lesion, 1 skin, 2 non-skin), instances (int64), anatomy (16 parts),
-    anatomy_groups (7 groups + background), depth (float32, -1 off the body), boxes
-    (float32 N x 4, [x0, y0, x1, y1) ), nevi (int64 nevus ids, 0 none: the scan's
+    anatomy_groups (7 groups + background), depth (float32, -1 off the body; a
+    frame-edge occluder's pixels hold the focus distance), boxes (float32 N x 4,
+    [x0, y0, x1, y1) ), nevi (int64 nevus ids, 0 none: the scan's
     annotated nevus boxes as rendered; written when ``outputs`` has nevi). Codes and
     names: ``glsynth.dataformat``. Items are dicts of torch tensors with ``image``
     float32 3 x H x W in [0, 1], plus ``meta`` (the per-image JSON). ``transform``

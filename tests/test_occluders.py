@@ -49,9 +49,9 @@ def test_occlude_takes_the_occluder_out_of_every_label(rng, kind):
                           kinds={kind: 1})
     hidden = occ.mask
     assert 0 < hidden.mean() < 0.6
-    assert occlude(layers, occ, LOOSE)
+    assert occlude(layers, occ, LOOSE, 0.25)
     assert (layers["semantic"][hidden] == SEMANTIC_BACKGROUND).all()
-    for name, off in {"instances": 0, "anatomy": 0, "face_id": -1, "depth": -1, "uv": -1, "normals": 0}.items():
+    for name, off in {"instances": 0, "anatomy": 0, "face_id": -1, "depth": 0.25, "uv": -1, "normals": 0}.items():
         assert (layers[name][hidden] == off).all(), name
         assert (layers[name][~hidden] == before[name][~hidden]).all(), name
     assert layers["regions"] == _boxes(layers["instances"])
@@ -72,13 +72,13 @@ def test_occlude_leaves_a_view_alone_when_it_would_hide_most_of_a_lesion(rng):
     alpha[:, :30] = 1
     occ = Occluder("clothing", shape, (0, shape[0], 0, shape[1]), np.zeros(shape + (3,), np.uint8), alpha,
                    np.ones(shape, np.float32))
-    assert not occlude(layers, occ, LOOSE)
+    assert not occlude(layers, occ, LOOSE, 0.3)
     assert all((layers[k] == v).all() for k, v in before.items())
     # nor when the view's skin minimum would not survive
     alpha[:] = 0
     alpha[:, 60:] = 1
-    assert not occlude(layers, occ, types.SimpleNamespace(min_skin=0.35, min_lesion=0.0))   # 39 of 128 columns left
-    assert occlude(layers, occ, types.SimpleNamespace(min_skin=0.25, min_lesion=0.0))
+    assert not occlude(layers, occ, types.SimpleNamespace(min_skin=0.35, min_lesion=0.0), 0.3)   # 39 of 128 columns left
+    assert occlude(layers, occ, types.SimpleNamespace(min_skin=0.25, min_lesion=0.0), 0.3)
 
 
 def _frame(occ, box_array, fill):

@@ -72,8 +72,13 @@ def test_every_sample_is_consistent(dataset):
         seen_lesion |= bool(lesion.any())
         assert (inst[lesion] > 0).all() and (inst[~lesion] == 0).all()
         assert (ana[lesion] > 0).all() and (ana[sem > 0] > 0).all() and (ana[sem == 0] == 0).all()
-        assert ((depth == -1) == (sem == 0)).all()
         assert (depth[sem > 0] > 0).all()
+        seen = depth != -1     # the body, and a frame-edge occluder at the focus distance
+        if meta["background"]["edge"] is None:
+            assert (seen == (sem > 0)).all()
+        else:
+            focus = np.linalg.norm(np.subtract(meta["camera"]["target"], meta["camera"]["eye"]))
+            assert np.allclose(depth[seen & (sem == 0)], focus, rtol=1e-6)
         # the paper's 3-class target is a partition of the image
         from glsynth.dataformat import three_class
         three = three_class(sem)

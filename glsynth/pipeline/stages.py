@@ -352,16 +352,16 @@ class Generate2DViews(_Stage):
             bg_index = int(rng.integers(len(backgrounds)))
             blur = float(rng.uniform(*cfg.backgrounds.blur))
         exposure = V.background_exposure(scene, backgrounds.meta[bg_index])
+        cam = scene.camera
+        focus = V.focus_distance(cam)
         occluder = None
         if scene.framing != "wild" and cfg.backgrounds.edges > 0:
             # gloved fingers, clothing or a drape at the frame's edge: its own generator
             edge_rng = rng_for(cfg.seed, "edge", body_id, j)
             if edge_rng.random() < cfg.backgrounds.edges:
                 occluder = V.edge_occluder(scene, layers["semantic"].shape, edge_rng)
-                occluder = occluder if V.occlude(layers, occluder, v) else None
-        cam = scene.camera
+                occluder = occluder if V.occlude(layers, occluder, v, focus) else None
         # camera model: its own generator, so switching it on changes no scene parameter
-        focus = float(np.linalg.norm(np.subtract(cam.target, cam.eye)))
         photo_params = photo.sample_params(cfg.photo, rng_for(cfg.seed, "photo", body_id, j), focus,
                                            focal_px=float(cam.intrinsics()[1, 1]))
         if "rgb" in cfg.outputs and background is None:
@@ -386,12 +386,10 @@ class Generate2DViews(_Stage):
             t0 = time.perf_counter()
             if "rgb" in outputs:
                 image = V.composite(layers["rgba"], V.expose(background, exposure), blur)
-                depth = layers["depth"]
-                if occluder is not None:   # it lies on the skin, in focus
+                if occluder is not None:
                     image = V.draw_occluder(image, occluder)
-                    depth = np.where(occluder.mask, np.float32(focus), depth)
                 # RGB only: every label layer stays the sharp geometric truth
-                layers["image"] = photo.apply(image, photo_params, depth)
+                layers["image"] = photo.apply(image, photo_params, layers["depth"])
             write_sample(out, sid, layers, meta, outputs)
             self._time("finish", time.perf_counter() - t0)  # in the writer thread
         return finish

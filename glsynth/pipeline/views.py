@@ -437,8 +437,8 @@ def render_view(renderer, body, mesh_b, instances, nevi_map, scene: ViewScene, v
 
 def edge_occluder(scene: ViewScene, shape, rng) -> Occluder:
     """Gloved fingers, clothing or a drape at the frame's edge, drawn at the scale of
-    the skin the camera focuses on and lit from the view's lights (each weighted by its
-    diffuse strength; a flash lights from the camera)."""
+    the skin the camera focuses on (``focus_distance``) and lit from the view's lights
+    (each weighted by its diffuse strength; a flash lights from the camera)."""
     cam = scene.camera
     rot = cam.view_matrix()[:3, :3]
     towards = np.zeros(3)
@@ -446,9 +446,13 @@ def edge_occluder(scene: ViewScene, shape, rng) -> Occluder:
         d = rot @ (np.asarray(light.position) - np.asarray(cam.target))
         towards += np.mean(light.diffuse) * d / max(np.linalg.norm(d), 1e-9)
     towards = towards / np.linalg.norm(towards) if np.linalg.norm(towards) > 1e-9 else np.array([0, 0, 1.0])
-    focus = float(np.linalg.norm(np.subtract(cam.target, cam.eye)))
-    mm_per_px = 1000 * focus / float(cam.intrinsics()[1, 1])
+    mm_per_px = 1000 * focus_distance(cam) / float(cam.intrinsics()[1, 1])
     return sample_occluder(rng, shape, mm_per_px, towards)
+
+
+def focus_distance(cam: Camera) -> float:
+    """Where the camera focuses: its target, in view-space depth (scene units)."""
+    return float(np.linalg.norm(np.subtract(cam.target, cam.eye)))
 
 
 def draw_occluder(image: np.ndarray, occluder: Occluder) -> np.ndarray:
@@ -462,11 +466,13 @@ def draw_occluder(image: np.ndarray, occluder: Occluder) -> np.ndarray:
     return out
 
 
-def occlude(layers: dict, occluder: Occluder, v) -> bool:
+def occlude(layers: dict, occluder: Occluder, v, depth: float) -> bool:
     """Take the occluder's pixels out of the body's labels, in place: they become
     background (the body's surface is not seen there; the paper's 3-class target counts
-    them as non-skin), and instances, anatomy, nevi, UV, normals and face ids are cleared
-    and depth set to -1 there, as everywhere off the body.
+    them as non-skin), and instances, anatomy, nevi, UV, normals and face ids are
+    cleared there. Depth there becomes ``depth``, the occluder's own (it lies on the
+    skin at the focus distance), so that defocus, which reads the depth layer, keeps it
+    sharp and the recorded camera model reproduces the image.
     Returns False, changing nothing, when the view's skin or lesion minimum, or 70% of
     the lesion pixels, would not survive."""
     hidden = occluder.mask
@@ -478,7 +484,7 @@ def occlude(layers: dict, occluder: Occluder, v) -> bool:
     if skin < v.min_skin or lesion / n < v.min_lesion or lesion < 0.7 * np.count_nonzero(sem == SEMANTIC_LESION):
         return False
     np.putmask(sem, hidden, SEMANTIC_BACKGROUND)
-    clear = {"instances": 0, "anatomy": 0, "nevi": 0, "face_id": -1, "depth": -1, "uv": -1, "normals": 0}
+    clear = {"instances": 0, "anatomy": 0, "nevi": 0, "face_id": -1, "depth": depth, "uv": -1, "normals": 0}
     for name, value in clear.items():
         if name in layers:
             layers[name][hidden] = value
