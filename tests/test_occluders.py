@@ -8,7 +8,7 @@ import pytest
 
 from glsynth.assets.occluders import Occluder, sample_occluder
 from glsynth.dataformat import SEMANTIC_BACKGROUND, SEMANTIC_LESION, SEMANTIC_SKIN
-from glsynth.pipeline.photo import srgb_to_linear
+from glsynth.pipeline.photo import linear_to_srgb8, srgb_to_linear
 from glsynth.pipeline.views import draw_occluder, instance_regions, occlude
 
 LOOSE = types.SimpleNamespace(min_skin=0.0, min_lesion=0.0)
@@ -70,7 +70,7 @@ def test_occlude_leaves_a_view_alone_when_it_would_hide_most_of_a_lesion(rng):
     shape = layers["semantic"].shape
     alpha = np.zeros(shape, np.float32)
     alpha[:, :30] = 1
-    occ = Occluder("clothing", shape, (0, shape[0], 0, shape[1]), np.zeros(shape + (3,), np.uint8), alpha,
+    occ = Occluder("clothing", shape, (0, shape[0], 0, shape[1]), np.zeros(shape + (3,), np.float32), alpha,
                    np.ones(shape, np.float32))
     assert not occlude(layers, occ, LOOSE, 0.3)
     assert all((layers[k] == v).all() for k, v in before.items())
@@ -113,7 +113,7 @@ def test_gloved_fingers_are_finger_sized_and_lit_from_the_light(rng):
     width_px = occ.meta["width_mm"] / mm_per_px
     assert 0.8 * width_px <= 2 * dist.max() <= 1.1 * width_px
     # the side of each finger facing the light is the brighter one
-    lum = lambda o: _frame(o, o.rgb.astype(np.float32) @ np.float32([0.3, 0.59, 0.11]), 0)  # noqa: E731
+    lum = lambda o: _frame(o, o.rgb @ np.float32([0.3, 0.59, 0.11]), 0)  # noqa: E731
     inner = np.zeros(shape, bool)                                # away from the frame's edge
     m = int(width_px / 2)
     inner[m:-m, m:-m] = True
@@ -137,21 +137,22 @@ def test_occluders_stay_finite_at_any_scale_and_light(rng, mm_per_px, light):
         for a in (occ.rgb, occ.alpha, occ.shadow):
             assert np.isfinite(a).all()
         assert occ.alpha.min() >= 0 and occ.alpha.max() <= 1 and occ.shadow.min() > 0 and occ.shadow.max() <= 1
-        assert occ.rgb.dtype == np.uint8 and occ.rgb.shape == occ.alpha.shape + (3,) == occ.shadow.shape + (3,)
+        assert occ.rgb.dtype == np.float32 and occ.rgb.shape == occ.alpha.shape + (3,) == occ.shadow.shape + (3,)
+        assert 0 <= occ.rgb.min() and occ.rgb.max() <= 1
         assert occ.mask.any() and not occ.mask.all()
 
 
 def test_an_occluder_covers_what_it_covers_and_shades_only_the_rest(rng):
     image = rng.integers(0, 256, (40, 50, 3)).astype(np.uint8)
     box = (5, 40, 10, 50)                                  # drawn in a box, not the frame
-    rgb = rng.integers(0, 256, (35, 40, 3)).astype(np.uint8)
+    rgb = rng.uniform(0, 1, (35, 40, 3)).astype(np.float32)     # linear light
     alpha = np.zeros((35, 40), np.float32)
     alpha[:, 15:] = 1                                      # covers columns 25 onwards
     occ = Occluder("drape", (40, 50), box, rgb, alpha, np.ones((35, 40), np.float32))
     assert occ.mask.sum() == 35 * 25 and occ.mask[5:, 25:].all()
     out = draw_occluder(image, occ)
     assert (out[~occ.mask] == image[~occ.mask]).all()     # unshaded, untouched
-    assert (out[5:, 25:] == rgb[:, 15:]).all()
+    assert (out[5:, 25:] == linear_to_srgb8(rgb[:, 15:])).all()
     # a quarter of the light left beneath it: a quarter in linear light
     occ.shadow[:] = 0.25
     dark = srgb_to_linear(draw_occluder(image, occ)[5:, 10:25])

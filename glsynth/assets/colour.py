@@ -67,11 +67,16 @@ def shades_of_gray(img: np.ndarray, p: float = 6) -> np.ndarray:
     return np.ascontiguousarray(np.stack([lut[img[..., c], c] for c in range(3)], -1))
 
 
+def srgb_to_linear(c) -> np.ndarray:
+    """sRGB values in [0, 1] -> linear light (float64)."""
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
 def srgb_to_lab(rgb) -> np.ndarray:
     """sRGB (uint8 0..255, or float 0..1) ...x3 -> CIELAB (D65) float64 ...x3."""
     rgb = np.asarray(rgb)
-    c = rgb.astype(np.float64) / 255.0 if rgb.dtype == np.uint8 else rgb.astype(np.float64)
-    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    lin = srgb_to_linear(rgb / 255.0 if rgb.dtype == np.uint8 else rgb)
     xyz = lin @ LINEAR_RGB_TO_XYZ.T / WHITE_D65
     f = np.where(xyz > _DELTA ** 3, np.cbrt(xyz), xyz / (3 * _DELTA ** 2) + 4.0 / 29.0)
     L = 116.0 * f[..., 1] - 16.0

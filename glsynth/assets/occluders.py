@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from .backgrounds import backdrop_image, backdrop_layout, wide_blur
+from .colour import srgb_to_linear
 from .lesions import fractal_noise
 
 # examination gloves (sRGB): nitrile blue, violet, black, white; latex cream; a
@@ -29,13 +30,14 @@ GLOVES = [(70, 115, 195), (95, 140, 215), (110, 95, 180), (40, 40, 46), (232, 23
           (226, 208, 170), (196, 160, 118)]
 EDGE_KINDS = {"glove": 0.45, "clothing": 0.35, "drape": 0.2}
 FINGER_WIDTH_MM = (15.0, 20.0)   # a gloved adult finger's width
+SRGB8_TO_LINEAR = srgb_to_linear(np.arange(256) / 255).astype(np.float32)
 
 
 @dataclass
 class Occluder:
     """What the occluder draws inside ``box`` (y0, y1, x0, x1) of a ``shape`` frame:
-    ``rgb`` (uint8 sRGB) over ``alpha`` (coverage 0..1), and ``shadow``, the share of
-    light left to what lies beneath; all three box-sized. ``meta`` goes in the per-image
+    ``rgb`` (float32 linear light, 0..1) over ``alpha`` (coverage 0..1), and ``shadow``,
+    the share of light left to what lies beneath; all three box-sized. ``meta`` goes in the per-image
     JSON."""
     kind: str
     shape: tuple
@@ -96,10 +98,6 @@ def _cast_shadow(alpha, light_xy, offset_px, softness_px, strength):
     return np.clip(1 - strength * np.maximum(cast, 0.6 * contact), 0, 1).astype(np.float32)
 
 
-def _to_srgb8(linear):
-    return np.clip(np.rint(255 * np.clip(linear, 0, 1) ** (1 / 2.2)), 0, 255).astype(np.uint8)
-
-
 def _gloved_fingers(rng, shape, mm_per_px, light, side, reach):
     h, w = shape
     radius = rng.uniform(*FINGER_WIDTH_MM) / 2 / mm_per_px
@@ -112,7 +110,7 @@ def _gloved_fingers(rng, shape, mm_per_px, light, side, reach):
     across = np.array([-inward[1], inward[0]])
     n = int(rng.choice([1, 2, 3, 4], p=[0.4, 0.3, 0.2, 0.1]))
     colour = np.clip(np.array(GLOVES[rng.integers(len(GLOVES))], np.float32) + rng.normal(0, 6, 3), 0, 255)
-    albedo = (colour / 255) ** 2.2
+    albedo = srgb_to_linear(colour / 255).astype(np.float32)
     gloss, sheen = rng.uniform(8, 30), rng.uniform(0.08, 0.25)   # nitrile satin to latex shine
     fingers = []
     for k in range(n):
@@ -156,7 +154,7 @@ def _gloved_fingers(rng, shape, mm_per_px, light, side, reach):
         alpha = np.maximum(alpha, cover)
     shadow = _cast_shadow(alpha, light, offset, softness, 0.55)
     meta = {"colour": [int(c) for c in colour], "fingers": n, "width_mm": float(2 * radius * mm_per_px)}
-    return box, _to_srgb8(rgb), alpha, shadow, meta
+    return box, np.clip(rgb, 0, 1), alpha, shadow, meta
 
 
 def _cloth_edge(rng, shape, mm_per_px, light, side, reach, kind):
@@ -195,7 +193,7 @@ def _cloth_edge(rng, shape, mm_per_px, light, side, reach, kind):
         on_line = np.exp(-((inside - hem) / max(0.3 / mm_per_px, 0.7)) ** 2)
         dashes = (np.mod(along, stitch) < 0.6 * stitch).astype(np.float32)
         shade = shade * (1 - 0.3 * on_line * dashes)
-    rgb = np.clip(np.rint(cloth * (shade ** (1 / 2.2))[..., None]), 0, 255).astype(np.uint8)
+    rgb = SRGB8_TO_LINEAR[cloth] * shade[..., None]
     shadow = _cast_shadow(alpha, np.asarray(light, np.float32), standoff, softness, 0.5)
     meta = {"colour": list(layout["colour"]), "pattern": layout.get("pattern")}
     return box, rgb, alpha, shadow, meta

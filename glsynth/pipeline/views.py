@@ -461,8 +461,7 @@ def draw_occluder(image: np.ndarray, occluder: Occluder) -> np.ndarray:
     y0, y1, x0, x1 = occluder.box
     out = image.copy()
     under = srgb_to_linear(image[y0:y1, x0:x1]) * occluder.shadow[..., None]
-    top = srgb_to_linear(occluder.rgb)
-    out[y0:y1, x0:x1] = linear_to_srgb8(under + (top - under) * occluder.alpha[..., None])
+    out[y0:y1, x0:x1] = linear_to_srgb8(under + (occluder.rgb - under) * occluder.alpha[..., None])
     return out
 
 
