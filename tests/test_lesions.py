@@ -424,7 +424,7 @@ def test_reference_skin_lies_in_its_fitzpatrick_band(fitz):
 
 def test_procedural_bad_arguments():
     with pytest.raises(ValueError, match="kinds"):
-        procedural_lesions(1, kinds=["wart"])
+        procedural_lesions(1, kinds=["chilblain"])
     with pytest.raises(ValueError, match="Fitzpatrick"):
         procedural_lesions(1, fitzpatrick=7)
 
@@ -952,3 +952,86 @@ def test_seborrhoeic_keratosis_is_stuck_on_with_dark_keratin_in_its_fissures(rng
         assert np.percentile(h, 5) > 0.1
         low, high = h < np.percentile(h, 15), h > np.percentile(h, 85)
         assert np.median(mel[low]) > np.median(mel[high]) + 0.01, seed
+
+
+def test_warts_are_rough_keratotic_papules_flecked_with_black_dots(rng):
+    """A wart is raised, under keratin over most of it, interrupts the skin's lines, and
+    carries black dots (clotted capillaries) inside its outline and nowhere outside."""
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=3):
+        f = make_condition("wart", [int(seed)], size=256)
+        m = f.mask
+        assert np.median(f.f["height"][m]) > 0.1 and np.median(f.f["scale"][m]) > 0.2
+        assert np.median(f.f["detail"][m]) < 0.5
+        dots = f.f["crust_dark"] > 0.5
+        assert dots.any() and not (dots & ~ndimage.binary_dilation(m, iterations=3)).any()
+        assert f.params["arrangement"] != "mosaic" or f.instances.max() >= 1
+
+
+def test_keloids_are_smooth_shiny_domes_higher_inside_than_at_the_edge(rng):
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=3):
+        f = make_condition("keloid", [int(seed)], size=256)
+        m = f.mask
+        d = ndimage.distance_transform_edt(m)
+        h = f.f["height"]
+        top, edge = h[d > 0.7 * d.max()].mean(), h[(d > 0) & (d < 0.1 * d.max())].mean()
+        assert top > 0.8 and top > 2 * edge, (top, edge)
+        assert np.median(f.f["detail"][m]) < 0.3 and np.median(f.f["gloss"][m]) > 0.1
+
+
+def test_herpes_vesicles_are_glistening_pale_domes_on_a_red_base_one_instance_per_cluster(rng):
+    """Vesicle clusters: the red base is outlined, one instance per cluster (clusters
+    that touch merge); vesicles are domes that glisten and hold less of the base's
+    added blood; crusted clusters carry crust instead."""
+    from glsynth.assets.morphology import make_condition
+    kinds = set()
+    for seed in rng.integers(2 ** 31, size=6):
+        f = make_condition("herpes", [int(seed)], size=256)
+        kinds.add(f.params["kind"])
+        assert 1 <= f.instances.max() <= f.params["clusters"]
+        m = f.mask
+        assert np.median(f.f["blood_add"][m]) > 0.1                       # the red base
+        dome = f.f["height"] > 0.2
+        assert (dome & m).sum() > 0.9 * dome.sum() > 0
+        wet = f.f["gloss"] > 0.5
+        if wet.any():
+            assert np.median(f.f["blood_add"][wet]) < np.median(f.f["blood_add"][m & ~dome])
+        else:
+            assert f.f["crust"][dome].mean() > 0.1
+    assert kinds == {"simplex", "zoster"} or len(kinds) == 1
+
+
+def test_kaposi_sarcoma_is_violaceous_on_light_skin_and_darker_on_dark_skin(rng):
+    """Poorly oxygenated blood and haemosiderin: on type II skin the lesion turns redder
+    and not yellower (violaceous, where erythema leans to yellow); on type VI it is darker
+    than the skin round it."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    for seed in rng.integers(2 ** 31, size=3):
+        f = make_condition("kaposi_sarcoma", [int(seed)], size=256)
+        inner = ndimage.binary_erosion(f.mask, iterations=2)
+        outside = ~ndimage.binary_dilation(f.mask, iterations=12)
+        for fitz, check in ((2, lambda d: d[1] > 5 and d[2] < 2), (6, lambda d: d[0] < -2)):
+            skin = reference_skin(fitz, 256, np.random.default_rng(int(seed)))
+            lab = srgb_to_lab(apply_to_skin(f, skin))
+            d = np.median(lab[inner], 0) - np.median(lab[outside], 0)
+            assert check(d), (fitz, np.round(d, 1))
+
+
+def test_granuloma_annulare_is_a_raised_ring_without_scale_outlined_with_its_centre(rng):
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=3):
+        f = make_condition("granuloma_annulare", [int(seed)], size=256)
+        assert f.instances.max() == 1 and (ndimage.binary_fill_holes(f.mask) == f.mask).all()
+        d = ndimage.distance_transform_edt(f.mask)
+        assert f.f["height"][d > 0.8 * d.max()].max() < 0.05 < f.f["height"][f.mask].max()
+        assert f.f["scale"].max() == 0
+
+
+def test_actinic_keratoses_are_scaly_red_patches(rng):
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=3):
+        f = make_condition("actinic_keratosis", [int(seed)], size=256)
+        m = f.mask
+        assert np.median(f.f["blood_add"][m]) > 0.05 and f.f["scale"][m].mean() > 0.05

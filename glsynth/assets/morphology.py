@@ -1069,6 +1069,207 @@ def _inflammatory_patch(b, rng, R):
     return {"border": border, "surface": str(look), "patches": n}
 
 
+def _wart(b, rng, R):
+    """Common wart (verruca vulgaris): a rough papule of skin colour to grey, its surface
+    a crowd of keratotic fronds (papillomatous: small conical projections under dry,
+    yellowish-grey keratin) that interrupt the skin's lines, flecked with black dots where
+    capillary loops have clotted. Solitary, a mother wart with satellites, or small warts
+    merged into a mosaic plaque (one lesion), on the hands and feet."""
+    c = b.c
+    kind = str(rng.choice(["solitary", "satellite", "mosaic"], p=[0.45, 0.35, 0.2]))
+    if kind == "solitary":
+        centres, radii = [np.zeros(2)], [R * rng.uniform(0.6, 0.85)]
+    elif kind == "satellite":
+        centres = arrange(c, "satellite", int(rng.integers(3, 8)), R * 0.75, R * 0.25)
+        radii = [R * 0.4] + list(R * rng.uniform(0.1, 0.2, len(centres) - 1))
+    else:
+        centres = arrange(c, "grouped", int(rng.integers(6, 20)), R * 0.9, R * 0.1)
+        radii = list(R * rng.uniform(0.12, 0.25, len(centres)))
+    frond = float(np.clip(R / 8, 0.3, 0.8))                 # mm across one frond
+    wall, tip, _ = b.cells(frond)
+    fronds = smoothstep(0.0, 0.5, wall) * (0.7 + 0.3 * tip)   # a cone per cell
+    keratin = (212, 200, 178)
+    for p, r in zip(centres, radii):
+        sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.75, 1.0), irregular=0.2, warp=0.1)
+        w = b.weight(sd, r * 0.1)
+        dome = smoothstep(-r * 0.05, r * 0.5, sd)
+        h = min(rng.uniform(0.25, 0.45) * r, 2.0)
+        b.f["height"] = np.maximum(b.f["height"], w * (h * dome + 0.25 * fronds))
+        b.f["scale"] = np.maximum(b.f["scale"], w * (0.25 + 0.45 * fronds) * rng.uniform(0.6, 1.0))
+        b.f["detail"] *= 1 - 0.8 * w
+        b.f["melanin"] *= 1 + 0.3 * w * (1 - fronds)        # darker between the fronds
+        # thrombosed capillaries: black dots a quarter to half a millimetre, in the valleys
+        dots = smoothstep(1.6, 2.2, c.noise(max(0.25, frond * 0.6), 1)) * w * dome
+        b.crust(dots, 1.0, "haemorrhagic", lump_mm=frond, thickness_mm=0.02)
+        b.f["crust_dark"] = np.maximum(b.f["crust_dark"], dots)
+        b.outline(w, 0.4, instance=1 if kind == "mosaic" else None)
+    return {"arrangement": kind, "scale_rgb": keratin, "crust_rgb": CRUST_COLOURS["haemorrhagic"]}
+
+
+def _keloid(b, rng, R):
+    """Keloid: scar tissue grown past the wound it closed: a firm, raised plaque with
+    rounded edges and a smooth, taut, shiny surface (the skin's lines gone), often
+    sending claw-like extensions out along the skin's tension lines; pink to red while
+    it grows, then the colour of the skin or darker (dark brown on dark skin), fine
+    vessels across its top. On the chest, shoulders, earlobes and jaw."""
+    c = b.c
+    axis = rng.uniform(0, np.pi)
+    aspect = rng.uniform(0.25, 0.7)
+    sd = c.shape("oval", R * 0.8, aspect=aspect, angle=axis, irregular=0.15, warp=0.08)
+    claws = int(rng.choice([0, 0, 1, 2, 3]))
+    for _ in range(claws):                      # bands out from the body, near its long axis
+        a = axis + rng.choice([0.0, np.pi]) + rng.normal(0, 0.5)
+        start = R * rng.uniform(0.3, 0.6) * np.array([np.cos(a), np.sin(a)])
+        claw = c.shape("linear", R * rng.uniform(0.1, 0.2), centre=start, angle=a,
+                       width=R * aspect * rng.uniform(0.45, 0.8), irregular=0.1, warp=0.1)
+        sd = np.maximum(sd, claw)
+    w = b.weight(sd, R * 0.05)
+    # a rounded ridge: highest along the middle, each claw lower as it narrows
+    s = np.clip(sd / max(float(sd.max()), 1e-6), 0.0, 1.0)
+    b.f["height"] += rng.uniform(1.0, 4.0) * np.sqrt(s * (2 - s)) * w
+    b.f["gloss"] = np.maximum(b.f["gloss"], rng.uniform(0.12, 0.25) * w)
+    b.f["detail"] *= 1 - 0.85 * w
+    b.mix("scatter", w, rng.uniform(1.05, 1.25))            # dense collagen
+    active = rng.random() < 0.45
+    if active:
+        b.erythema(w * (0.85 + 0.15 * c.noise(R / 3, 2)), rng.uniform(1.5, 3.0))
+    else:
+        b.erythema(w, rng.uniform(0.2, 0.8))
+        b.f["melanin"] *= 1 + rng.uniform(0.2, 1.0) * w
+    n = int(rng.integers(1, 5))
+    around = rng.uniform(0, 2 * np.pi, n)
+    starts = R * 0.5 * aspect * np.stack([np.cos(around), np.sin(around)], 1)
+    vessels = vessel_tree(c, starts, around + np.pi, rng.uniform(0.06, 0.12), R * 0.5, depth=2) * w
+    b.erythema(vessels * smoothstep(0.0, R * 0.1, sd), 3.0, 0.85)
+    b.outline(w, 0.4)
+    return {"stage": "active" if active else "mature", "claws": claws}
+
+
+def _herpes(b, rng, R):
+    """Herpes simplex and zoster: clusters of small tense vesicles (1-4 mm, clear to
+    milky, domed and glistening, some with a central dell) on a red base; older clusters
+    turned to pustules or to honey and dark crust. Simplex is one cluster (lips, face);
+    zoster several along a dermatome, a band across one side of the trunk. Each cluster
+    is outlined with its red base."""
+    c = b.c
+    zoster = R > 20 and rng.random() < 0.6          # a dermatome's band is centimetres long
+    if zoster:
+        centres = arrange(c, "dermatomal", int(rng.integers(3, 8)), R * 0.85, R * 0.3)
+        sizes = R * rng.uniform(0.12, 0.25, len(centres))
+    else:
+        centres, sizes = [np.zeros(2)], [min(R * rng.uniform(0.35, 0.6), rng.uniform(5.0, 15.0))]
+    stages, bases = [], np.zeros((c.size, c.size), np.float32)
+    for q, rc in zip(centres, sizes):
+        base = c.shape("round", rc, centre=q, aspect=rng.uniform(0.6, 1.0), irregular=0.2, warp=0.06)
+        w = b.weight(base, rc * 0.3, "ill-defined")
+        b.erythema(w, rng.uniform(2.0, 3.5))
+        stage = str(rng.choice(["vesicles", "pustules", "crusted"], p=[0.5, 0.2, 0.3]))
+        stages.append(stage)
+        r_lo, r_hi = 0.5, float(np.clip(rc * 0.3, 0.8, 2.5))
+        n = int(np.clip(0.5 * (rc / r_hi) ** 2 * rng.uniform(0.6, 1.2), 3, 40))   # closely set
+        pts = [np.asarray(q) + p for p in arrange(c, "grouped", n, rc * 1.2, r_lo * 1.6)]
+        pts = [p for p in pts if np.abs(p).max() < c.extent / 2]
+        if pts:
+            radii = rng.uniform(r_lo, r_hi, len(pts))
+            sd, index = spots(c, pts, radii)
+            r = radii[index].astype(np.float32)
+            v = smoothstep(-0.1, 0.25, sd / r) * w
+            dome = np.sqrt(np.clip(sd / r, 0, 1))
+            dell = (rng.random(len(pts)) < 0.3)[index] * smoothstep(0.6, 0.95, sd / r)
+            b.f["height"] = np.maximum(b.f["height"], 0.5 * r * v * (dome - 0.4 * dell))
+            if stage == "crusted":
+                b.crust(v, 0.9, str(rng.choice(["honey", "haemorrhagic"])), lump_mm=r_hi)
+            else:
+                # fluid lifts the epidermis off the red base: paler, milky, glistening
+                b.f["blood_add"] *= 1 - 0.6 * v
+                b.mix("scatter", v, rng.uniform(1.2, 1.5))
+                cloudy = 0.2 if stage == "vesicles" else 0.6
+                b.f["scale"] = np.maximum(b.f["scale"], cloudy * v)
+                b.f["gloss"] = np.maximum(b.f["gloss"], 0.7 * v)
+        bases = np.maximum(bases, w)
+    b.outline(bases, 0.35)          # one lesion per connected cluster (make_condition splits)
+    colour = (236, 232, 226) if "vesicles" in stages else SCALE_COLOURS["greasy"]
+    return {"kind": "zoster" if zoster else "simplex", "clusters": len(centres), "scale_rgb": colour}
+
+
+def _kaposi_sarcoma(b, rng, R):
+    """Kaposi sarcoma, a tumour of small vessels: patches, plaques and nodules, oval along
+    the skin's lines, violaceous to red-purple on light skin and purple-brown to near black
+    on dark skin (poorly oxygenated blood in slit-like vessels, haemosiderin round them),
+    some with a yellow-green bruise-like halo; several, on the legs and feet."""
+    c = b.c
+    axis = rng.uniform(0, np.pi)
+    halo = rng.random() < 0.4
+    for i, p in enumerate(arrange(c, "grouped", int(rng.integers(1, 7)), R * 0.8, R * 0.3)):
+        r = R * (rng.uniform(0.4, 0.7) if i == 0 else rng.uniform(0.12, 0.35))
+        stage = str(rng.choice(["patch", "plaque", "nodule"], p=[0.35, 0.4, 0.25]))
+        sd = c.shape("oval", r, centre=p, aspect=rng.uniform(0.4, 0.85), angle=axis + rng.normal(0, 0.3),
+                     irregular=0.15, warp=0.1)
+        w = b.weight(sd, r * 0.3, "ill-defined" if stage == "patch" else "sharp")
+        inside = 0.8 + 0.2 * smoothstep(-1.0, 1.0, c.noise(r / 3, 2))
+        b.f["blood_add"] += w * inside * rng.uniform(0.35, 0.7)
+        b.mix("oxygen", w, rng.uniform(0.3, 0.5))
+        b.mix("scatter", w, rng.uniform(0.3, 0.55))
+        b.f["dermal_melanin"] += w * rng.uniform(0.005, 0.015)
+        b.f["melanin"] *= 1 + rng.uniform(0.2, 0.6) * w
+        if halo:
+            ring = b.weight(sd + r * 0.35, r * 0.3, "ill-defined") * (1 - w)
+            b.f["bilirubin"] += 0.15 * ring
+            b.f["dermal_melanin"] += 0.003 * ring
+        if stage != "patch":
+            h = rng.uniform(0.2, 0.5) if stage == "plaque" else min(0.35 * r, 3.0)
+            b.f["height"] = np.maximum(b.f["height"], h * smoothstep(-r * 0.05, r * 0.5, sd))
+            b.f["gloss"] = np.maximum(b.f["gloss"], 0.12 * w)
+            b.f["detail"] *= 1 - (0.3 if stage == "plaque" else 0.7) * w
+        b.outline(w, 0.4)
+    return {"halo": halo}
+
+
+def _granuloma_annulare(b, rng, R):
+    """Granuloma annulare: a ring of small, smooth, firm papules (beaded), skin-coloured
+    to pink or violet-brown, round a centre of normal or faintly dusky skin, with no
+    scale (what tells it from tinea); on the backs of the hands and feet, the fingers,
+    the elbows and the shins. The ring is outlined with its centre."""
+    c = b.c
+    width = R * rng.uniform(0.15, 0.3)
+    ring = c.shape("annular", R - width / 2, aspect=rng.uniform(0.7, 1.0), irregular=0.15, warp=0.05,
+                   width=width)
+    w_ring = b.weight(ring, width * 0.3)
+    beads = smoothstep(-0.4, 0.9, c.noise(float(np.clip(width * 0.6, 1.0, 4.0)), 1))   # papules
+    b.f["height"] += rng.uniform(0.3, 0.6) * w_ring * (0.4 + 0.6 * beads)
+    b.erythema(w_ring * (0.6 + 0.4 * beads), rng.uniform(0.6, 2.0), oxygen=rng.uniform(0.55, 0.75))
+    b.f["melanin"] *= 1 + rng.uniform(0.0, 0.4) * w_ring
+    b.mix("scatter", w_ring, 1.1)
+    b.f["detail"] *= 1 - 0.5 * w_ring
+    b.f["gloss"] = np.maximum(b.f["gloss"], 0.1 * w_ring)
+    # the centre: what the ring closes round, faintly dusky
+    closed = ndimage.binary_fill_holes(w_ring > 0.35)
+    w_centre = cv2.GaussianBlur((closed & (w_ring <= 0.35)).astype(np.float32), (0, 0),
+                                max(1.0, width * 0.2 / c.px))
+    b.erythema(w_centre * rng.uniform(0.0, 0.3), 0.5, oxygen=0.6)
+    b.outline(np.maximum(w_ring, closed), 0.35)
+    return {"ring_mm": round(float(width), 2)}
+
+
+def _actinic_keratosis(b, rng, R):
+    """Actinic keratoses on sun-damaged skin: rough, ill-defined pink to red-brown macules
+    and thin plaques a few millimetres to a centimetre or two across, under adherent
+    white to yellowish scale that is felt more than seen; several, on the face, scalp,
+    ears and the backs of the hands."""
+    c = b.c
+    for i, p in enumerate(arrange(c, "widespread", int(rng.integers(2, 8)), R * 0.8, R * 0.25)):
+        r = R * (rng.uniform(0.3, 0.5) if i == 0 else rng.uniform(0.12, 0.3))
+        sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.5, 1.0), irregular=0.3, warp=0.2)
+        w = b.weight(sd, r * 0.4, "ill-defined")
+        b.erythema(w * (0.7 + 0.3 * c.noise(r / 2, 2)), rng.uniform(1.0, 2.5))
+        b.f["melanin"] *= 1 + rng.uniform(0.0, 0.5) * w
+        b.scale(w * smoothstep(-r * 0.1, r * 0.3, sd), rng.uniform(0.2, 0.6), rng.uniform(0.3, 0.8),
+                str(rng.choice(["white", "greasy"], p=[0.7, 0.3])))
+        b.f["height"] += rng.uniform(0.0, 0.15) * w
+        b.outline(w, 0.35)
+    return {}
+
+
 # preset -> (builder, size range in mm (the condition's extent))
 PRESETS = {
     "nevus": (_nevus, (2.5, 9.0)),
@@ -1093,6 +1294,12 @@ PRESETS = {
     "pigmented_patch": (_pigmented_patch, (15.0, 150.0)),
     "lichen_planus": (_lichen_planus, (15.0, 80.0)),
     "inflammatory_patch": (_inflammatory_patch, (30.0, 200.0)),
+    "wart": (_wart, (5.0, 30.0)),
+    "keloid": (_keloid, (10.0, 80.0)),
+    "herpes": (_herpes, (12.0, 150.0)),
+    "kaposi_sarcoma": (_kaposi_sarcoma, (8.0, 80.0)),
+    "granuloma_annulare": (_granuloma_annulare, (15.0, 60.0)),
+    "actinic_keratosis": (_actinic_keratosis, (15.0, 60.0)),
 }
 
 
@@ -1124,6 +1331,12 @@ SITES = {
     "porokeratosis": {"torso": 0.05, "legs": 0.5, "arms": 0.45},
     "pigmented_patch": {"head": 0.4, "torso": 0.3, "legs": 0.15, "arms": 0.15},
     "lichen_planus": {"head": 0.1, "torso": 0.1, "legs": 0.35, "arms": 0.45},
+    "wart": {"head": 0.05, "legs": 0.05, "feet": 0.25, "arms": 0.05, "hands": 0.6},
+    "keloid": {"head": 0.2, "torso": 0.55, "legs": 0.05, "arms": 0.2},
+    "herpes": {"head": 0.35, "torso": 0.45, "hips": 0.05, "legs": 0.05, "arms": 0.1},
+    "kaposi_sarcoma": {"head": 0.05, "torso": 0.05, "legs": 0.55, "feet": 0.25, "arms": 0.1},
+    "granuloma_annulare": {"torso": 0.05, "legs": 0.2, "feet": 0.1, "arms": 0.3, "hands": 0.35},
+    "actinic_keratosis": {"head": 0.7, "arms": 0.1, "hands": 0.2},
 }
 
 
