@@ -1088,14 +1088,14 @@ def _wart(b, rng, R):
     frond = float(np.clip(R / 8, 0.3, 0.8))                 # mm across one frond
     wall, tip, _ = b.cells(frond)
     fronds = smoothstep(0.0, 0.5, wall) * (0.7 + 0.3 * tip)   # a cone per cell
-    keratin = (212, 200, 178)
+    keratin = (188, 174, 150)
     for p, r in zip(centres, radii):
         sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.75, 1.0), irregular=0.2, warp=0.1)
         w = b.weight(sd, r * 0.1)
         dome = smoothstep(-r * 0.05, r * 0.5, sd)
         h = min(rng.uniform(0.25, 0.45) * r, 2.0)
         b.f["height"] = np.maximum(b.f["height"], w * (h * dome + 0.25 * fronds))
-        b.f["scale"] = np.maximum(b.f["scale"], w * (0.25 + 0.45 * fronds) * rng.uniform(0.6, 1.0))
+        b.f["scale"] = np.maximum(b.f["scale"], w * (0.12 + 0.3 * fronds) * rng.uniform(0.6, 1.0))
         b.f["detail"] *= 1 - 0.8 * w
         b.f["melanin"] *= 1 + 0.3 * w * (1 - fronds)        # darker between the fronds
         # thrombosed capillaries: black dots a quarter to half a millimetre, in the valleys
@@ -1124,9 +1124,11 @@ def _keloid(b, rng, R):
                        width=R * aspect * rng.uniform(0.45, 0.8), irregular=0.1, warp=0.1)
         sd = np.maximum(sd, claw)
     w = b.weight(sd, R * 0.05)
-    # a rounded ridge: highest along the middle, each claw lower as it narrows
+    # a rounded ridge: highest along the middle, each claw lower as it narrows (smoothed:
+    # the signed distance's crease along the middle read as a fold)
     s = np.clip(sd / max(float(sd.max()), 1e-6), 0.0, 1.0)
-    b.f["height"] += rng.uniform(1.0, 4.0) * np.sqrt(s * (2 - s)) * w
+    ridge = cv2.GaussianBlur(np.sqrt(s * (2 - s)), (0, 0), max(1.0, 0.15 * float(sd.max()) / c.px))
+    b.f["height"] += rng.uniform(1.0, 4.0) * ridge * w
     b.f["gloss"] = np.maximum(b.f["gloss"], rng.uniform(0.12, 0.25) * w)
     b.f["detail"] *= 1 - 0.85 * w
     b.mix("scatter", w, rng.uniform(1.05, 1.25))            # dense collagen
@@ -1135,7 +1137,7 @@ def _keloid(b, rng, R):
         b.erythema(w * (0.85 + 0.15 * c.noise(R / 3, 2)), rng.uniform(1.5, 3.0))
     else:
         b.erythema(w, rng.uniform(0.2, 0.8))
-        b.f["melanin"] *= 1 + rng.uniform(0.2, 1.0) * w
+        b.f["melanin"] *= 1 + rng.uniform(0.1, 0.5) * w
     n = int(rng.integers(1, 5))
     around = rng.uniform(0, 2 * np.pi, n)
     starts = R * 0.5 * aspect * np.stack([np.cos(around), np.sin(around)], 1)
@@ -1165,8 +1167,8 @@ def _herpes(b, rng, R):
         b.erythema(w, rng.uniform(2.0, 3.5))
         stage = str(rng.choice(["vesicles", "pustules", "crusted"], p=[0.5, 0.2, 0.3]))
         stages.append(stage)
-        r_lo, r_hi = 0.5, float(np.clip(rc * 0.3, 0.8, 2.5))
-        n = int(np.clip(0.5 * (rc / r_hi) ** 2 * rng.uniform(0.6, 1.2), 3, 40))   # closely set
+        r_lo, r_hi = 0.4, float(np.clip(rc * 0.15, 0.6, 1.5))
+        n = int(np.clip(0.8 * (rc / r_hi) ** 2 * rng.uniform(0.6, 1.2), 5, 60))   # closely set
         pts = [np.asarray(q) + p for p in arrange(c, "grouped", n, rc * 1.2, r_lo * 1.6)]
         pts = [p for p in pts if np.abs(p).max() < c.extent / 2]
         if pts:
@@ -1237,8 +1239,8 @@ def _granuloma_annulare(b, rng, R):
     w_ring = b.weight(ring, width * 0.3)
     beads = smoothstep(-0.4, 0.9, c.noise(float(np.clip(width * 0.6, 1.0, 4.0)), 1))   # papules
     b.f["height"] += rng.uniform(0.3, 0.6) * w_ring * (0.4 + 0.6 * beads)
-    b.erythema(w_ring * (0.6 + 0.4 * beads), rng.uniform(0.6, 2.0), oxygen=rng.uniform(0.55, 0.75))
-    b.f["melanin"] *= 1 + rng.uniform(0.0, 0.4) * w_ring
+    b.erythema(w_ring * (0.6 + 0.4 * beads), rng.uniform(1.0, 2.5), oxygen=rng.uniform(0.55, 0.75))
+    b.f["melanin"] *= 1 + rng.uniform(0.1, 0.5) * w_ring
     b.mix("scatter", w_ring, 1.1)
     b.f["detail"] *= 1 - 0.5 * w_ring
     b.f["gloss"] = np.maximum(b.f["gloss"], 0.1 * w_ring)
@@ -1263,7 +1265,7 @@ def _actinic_keratosis(b, rng, R):
         w = b.weight(sd, r * 0.4, "ill-defined")
         b.erythema(w * (0.7 + 0.3 * c.noise(r / 2, 2)), rng.uniform(1.0, 2.5))
         b.f["melanin"] *= 1 + rng.uniform(0.0, 0.5) * w
-        b.scale(w * smoothstep(-r * 0.1, r * 0.3, sd), rng.uniform(0.2, 0.6), rng.uniform(0.3, 0.8),
+        b.scale(w * smoothstep(-r * 0.1, r * 0.3, sd), rng.uniform(0.1, 0.35), rng.uniform(0.3, 0.8),
                 str(rng.choice(["white", "greasy"], p=[0.7, 0.3])))
         b.f["height"] += rng.uniform(0.0, 0.15) * w
         b.outline(w, 0.35)
