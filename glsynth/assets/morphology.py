@@ -1089,6 +1089,8 @@ def _wart(b, rng, R):
     wall, tip, _ = b.cells(frond)
     fronds = smoothstep(0.0, 0.5, wall) * (0.7 + 0.3 * tip)   # a cone per cell
     keratin = (188, 174, 150)
+    # thrombosed capillaries: black dots a quarter to half a millimetre, in the valleys
+    speckle = smoothstep(1.6, 2.2, c.noise(max(0.25, frond * 0.6), 1))
     for p, r in zip(centres, radii):
         sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.75, 1.0), irregular=0.2, warp=0.1)
         w = b.weight(sd, r * 0.1)
@@ -1098,8 +1100,7 @@ def _wart(b, rng, R):
         b.f["scale"] = np.maximum(b.f["scale"], w * (0.12 + 0.3 * fronds) * rng.uniform(0.6, 1.0))
         b.f["detail"] *= 1 - 0.8 * w
         b.f["melanin"] *= 1 + 0.3 * w * (1 - fronds)        # darker between the fronds
-        # thrombosed capillaries: black dots a quarter to half a millimetre, in the valleys
-        dots = smoothstep(1.6, 2.2, c.noise(max(0.25, frond * 0.6), 1)) * w * dome
+        dots = speckle * w * dome
         b.crust(dots, 1.0, "haemorrhagic", lump_mm=frond, thickness_mm=0.02)
         b.f["crust_dark"] = np.maximum(b.f["crust_dark"], dots)
         b.outline(w, 0.4, instance=1 if kind == "mosaic" else None)
@@ -1259,17 +1260,20 @@ def _actinic_keratosis(b, rng, R):
     white to yellowish scale that is felt more than seen; several, on the face, scalp,
     ears and the backs of the hands."""
     c = b.c
+    scaly = np.zeros((c.size, c.size), np.float32)
     for i, p in enumerate(arrange(c, "widespread", int(rng.integers(2, 8)), R * 0.8, R * 0.25)):
         r = R * (rng.uniform(0.3, 0.5) if i == 0 else rng.uniform(0.12, 0.3))
         sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.5, 1.0), irregular=0.3, warp=0.2)
         w = b.weight(sd, r * 0.4, "ill-defined")
         b.erythema(w * (0.7 + 0.3 * c.noise(r / 2, 2)), rng.uniform(1.0, 2.5))
         b.f["melanin"] *= 1 + rng.uniform(0.0, 0.5) * w
-        b.scale(w * smoothstep(-r * 0.1, r * 0.3, sd), rng.uniform(0.1, 0.35), rng.uniform(0.3, 0.8),
-                str(rng.choice(["white", "greasy"], p=[0.7, 0.3])))
+        scaly = np.maximum(scaly, w * smoothstep(-r * 0.1, r * 0.3, sd))
         b.f["height"] += rng.uniform(0.0, 0.15) * w
         b.outline(w, 0.35)
-    return {}
+    # one scale over them all (each scale() call costs a plate tessellation and four noises)
+    colour = str(rng.choice(["white", "greasy"], p=[0.7, 0.3]))
+    b.scale(scaly, rng.uniform(0.1, 0.35), rng.uniform(0.3, 0.8), colour)
+    return {"scale": colour, "scale_rgb": SCALE_COLOURS[colour]}
 
 
 # preset -> (builder, size range in mm (the condition's extent))
