@@ -1149,7 +1149,7 @@ def _keloid(b, rng, R):
 
 
 def _herpes(b, rng, R):
-    """Herpes simplex and zoster: clusters of small tense vesicles (1-4 mm, clear to
+    """Herpes simplex and zoster: clusters of small tense vesicles (1-3 mm, clear to
     milky, domed and glistening, some with a central dell) on a red base; older clusters
     turned to pustules or to honey and dark crust. Simplex is one cluster (lips, face);
     zoster several along a dermatome, a band across one side of the trunk. Each cluster
@@ -1162,6 +1162,7 @@ def _herpes(b, rng, R):
     else:
         centres, sizes = [np.zeros(2)], [min(R * rng.uniform(0.35, 0.6), rng.uniform(5.0, 15.0))]
     stages, bases = [], np.zeros((c.size, c.size), np.float32)
+    crust = str(rng.choice(["honey", "haemorrhagic"]))       # of the crusted clusters
     for q, rc in zip(centres, sizes):
         base = c.shape("round", rc, centre=q, aspect=rng.uniform(0.6, 1.0), irregular=0.2, warp=0.06)
         w = b.weight(base, rc * 0.3, "ill-defined")
@@ -1181,7 +1182,7 @@ def _herpes(b, rng, R):
             dell = (rng.random(len(pts)) < 0.3)[index] * smoothstep(0.6, 0.95, sd / r)
             b.f["height"] = np.maximum(b.f["height"], 0.5 * r * v * (dome - 0.4 * dell))
             if stage == "crusted":
-                b.crust(v, 0.9, str(rng.choice(["honey", "haemorrhagic"])), lump_mm=r_hi)
+                b.crust(v, 0.9, crust, lump_mm=r_hi)
             else:
                 # fluid lifts the epidermis off the red base: paler, milky, glistening
                 b.f["blood_add"] *= 1 - 0.6 * v
@@ -1192,7 +1193,8 @@ def _herpes(b, rng, R):
         bases = np.maximum(bases, w)
     b.outline(bases, 0.35)          # one lesion per connected cluster (make_condition splits)
     colour = (236, 232, 226) if "vesicles" in stages else SCALE_COLOURS["greasy"]
-    return {"kind": "zoster" if zoster else "simplex", "clusters": len(centres), "scale_rgb": colour}
+    return {"kind": "zoster" if zoster else "simplex", "clusters": len(centres), "stages": stages,
+            "scale_rgb": colour, "crust_rgb": CRUST_COLOURS[crust]}
 
 
 def _kaposi_sarcoma(b, rng, R):
