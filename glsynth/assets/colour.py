@@ -73,6 +73,10 @@ def srgb_to_linear(c) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
+# the same for 8-bit values, as a table (float32; index it with uint8 sRGB)
+SRGB8_TO_LINEAR = srgb_to_linear(np.arange(256) / 255).astype(np.float32)
+
+
 def srgb_to_lab(rgb) -> np.ndarray:
     """sRGB (uint8 0..255, or float 0..1) ...x3 -> CIELAB (D65) float64 ...x3."""
     rgb = np.asarray(rgb)

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from .backgrounds import backdrop_image, backdrop_layout, wide_blur
-from .colour import srgb_to_linear
+from .colour import SRGB8_TO_LINEAR, srgb_to_linear
 from .lesions import fractal_noise
 
 # examination gloves (sRGB): nitrile blue, violet, black, white; latex cream; a
@@ -30,7 +30,6 @@ GLOVES = [(70, 115, 195), (95, 140, 215), (110, 95, 180), (40, 40, 46), (232, 23
           (226, 208, 170), (196, 160, 118)]
 EDGE_KINDS = {"glove": 0.45, "clothing": 0.35, "drape": 0.2}
 FINGER_WIDTH_MM = (15.0, 20.0)   # a gloved adult finger's width
-SRGB8_TO_LINEAR = srgb_to_linear(np.arange(256) / 255).astype(np.float32)
 
 
 @dataclass

@@ -48,19 +48,20 @@ import math
 import cv2
 import numpy as np
 
+from ..assets.colour import SRGB8_TO_LINEAR
+
 LINEAR_EFFECTS = ("defocus", "motion_blur", "chromatic_aberration", "vignetting", "exposure",
                   "noise", "white_balance")
 EFFECTS = LINEAR_EFFECTS + ("tone", "jpeg")
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)   # Rec. 601, as JPEG's YCbCr
 
 # sRGB <-> linear look-up tables (the sRGB transfer function, IEC 61966-2-1)
-_S = np.arange(256, dtype=np.float64) / 255
-SRGB_TO_LINEAR = np.where(_S <= 0.04045, _S / 12.92, ((_S + 0.055) / 1.055) ** 2.4).astype(np.float32)
+SRGB_TO_LINEAR = SRGB8_TO_LINEAR
 _LIN_STEPS = 65535
 _L = np.arange(_LIN_STEPS + 1, dtype=np.float64) / _LIN_STEPS
 LINEAR_TO_SRGB8 = np.clip(np.round(255 * np.where(_L <= 0.0031308, 12.92 * _L,
                                                     1.055 * _L ** (1 / 2.4) - 0.055)), 0, 255).astype(np.uint8)
-del _S, _L
+del _L
 
 
 def srgb_to_linear(img_u8: np.ndarray) -> np.ndarray:
