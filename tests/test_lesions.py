@@ -1020,6 +1020,9 @@ def test_kaposi_sarcoma_is_violaceous_on_light_skin_and_darker_on_dark_skin(rng)
 
 
 def test_granuloma_annulare_is_a_raised_ring_without_scale_outlined_with_its_centre(rng):
+    """A ring of low papules: no wall round it (the relief's slope stays below 1.2, where
+    a ring raised as one band rose 0.3-0.5 mm within a cell or two), no scale, outlined
+    with its centre."""
     from glsynth.assets.morphology import make_condition
     for seed in rng.integers(2 ** 31, size=3):
         f = make_condition("granuloma_annulare", [int(seed)], size=256)
@@ -1027,6 +1030,28 @@ def test_granuloma_annulare_is_a_raised_ring_without_scale_outlined_with_its_cen
         d = ndimage.distance_transform_edt(f.mask)
         assert f.f["height"][d > 0.8 * d.max()].max() < 0.05 < f.f["height"][f.mask].max()
         assert f.f["scale"].max() == 0
+        gy, gx = np.gradient(f.f["height"] / f.mm_per_px)
+        assert np.hypot(gx, gy).max() < 1.2
+
+
+def test_dome_is_round_topped_without_a_crease_along_its_middle(rng):
+    """A dome over a long oval: highest on the middle, sloping to zero just past the edge,
+    and smooth across its crest (the raw distance to the edge kinks there, which shading
+    showed as a fold)."""
+    from glsynth.assets.morphology import dome
+    n = 200
+    a, b = rng.uniform(60, 90), rng.uniform(15, 30)
+    y, x = np.mgrid[:n, :n] - n / 2 + 0.5
+    inside = (x / a) ** 2 + (y / b) ** 2 < 1
+    h = dome(inside)
+    far = ndimage.distance_transform_edt(~inside) > b
+    assert h.max() == pytest.approx(1) and (h[far] < 0.01).all() and h[~inside].max() < 0.25
+    assert h[n // 2, n // 2] > 0.95
+    col = n // 2 + int(0.6 * a)              # a cut across the crest, off the top (the rounding
+    across = h[:, col][inside[:, col]].astype(np.float64)           # hides a kink at the top)
+    bend = np.abs(np.diff(across, 2))
+    crest = int(np.argmax(across)) - 1
+    assert bend[crest - 2:crest + 3].max() < 2 * np.median(bend[len(bend) // 4:3 * len(bend) // 4])
 
 
 def test_actinic_keratoses_are_scaly_red_patches(rng):

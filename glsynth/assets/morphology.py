@@ -117,6 +117,19 @@ def smoothstep(e0, e1, x):
     return t * t * (3 - 2 * t)
 
 
+def dome(inside, smooth=0.2):
+    """0..1 height of a smooth dome over the region ``inside`` (bool grid): the distance to
+    its edge, blurred over ``smooth`` of its greatest depth so that the distance's crease
+    along the middle does not show as a fold, and rounded at the top. The blur lets it
+    slope a little past the edge: a shoulder, not a step."""
+    d = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, 5)
+    if d.max() <= 0:
+        return d
+    d = cv2.GaussianBlur(d, (0, 0), max(1.0, smooth * float(d.max())))
+    s = d / float(d.max())
+    return 1 - (1 - s) ** 2
+
+
 class Canvas:
     """Coordinates (mm, centred) of a size x size grid and a seeded generator."""
 
@@ -1120,27 +1133,32 @@ def _keloid(b, rng, R):
     aspect = rng.uniform(0.25, 0.7)
     sd = c.shape("oval", R * 0.8, aspect=aspect, angle=axis, irregular=0.15, warp=0.08)
     claws = int(rng.choice([0, 0, 1, 2, 3]))
-    for _ in range(claws):                      # bands out from the body, near its long axis
+    for _ in range(claws):           # tapering, gently curving bands out near the long axis
         a = axis + rng.choice([0.0, np.pi]) + rng.normal(0, 0.5)
-        start = R * rng.uniform(0.3, 0.6) * np.array([np.cos(a), np.sin(a)])
-        claw = c.shape("linear", R * rng.uniform(0.1, 0.2), centre=start, angle=a,
-                       width=R * aspect * rng.uniform(0.45, 0.8), irregular=0.1, warp=0.1)
-        sd = np.maximum(sd, claw)
+        start = R * rng.uniform(0.3, 0.6) * aspect * np.array([np.cos(a), np.sin(a)])
+        length, half = R * rng.uniform(0.5, 1.0), R * aspect * rng.uniform(0.2, 0.4)
+        u = (c.x - start[0]) * np.cos(a) + (c.y - start[1]) * np.sin(a)
+        v = (c.y - start[1]) * np.cos(a) - (c.x - start[0]) * np.sin(a)
+        v = v - rng.uniform(-0.4, 0.4) * u ** 2 / length
+        t = np.clip(u / length, 0.0, 1.0)         # narrowing to a blunt, rounded tip
+        claw = half * (1 - 0.6 * t) - np.hypot(v, u - length * t)
+        k = 0.3 * half                      # a smooth union: a fillet where a claw leaves
+        sd = k * np.logaddexp(sd / k, claw / k)
     w = b.weight(sd, R * 0.05)
-    # a rounded ridge: highest along the middle, each claw lower as it narrows (smoothed:
-    # the signed distance's crease along the middle read as a fold)
-    s = np.clip(sd / max(float(sd.max()), 1e-6), 0.0, 1.0)
-    ridge = cv2.GaussianBlur(np.sqrt(s * (2 - s)), (0, 0), max(1.0, 0.15 * float(sd.max()) / c.px))
-    b.f["height"] += rng.uniform(1.0, 4.0) * ridge * w
+    # rounded shoulders sloping a little past the outline, each claw lower as it narrows
+    top = max(float(sd.max()), 1e-6)
+    b.f["height"] += rng.uniform(1.0, 4.0) * dome(sd > 0) * smoothstep(-0.08 * top, 0.1 * top, sd)
     b.f["gloss"] = np.maximum(b.f["gloss"], rng.uniform(0.12, 0.25) * w)
     b.f["detail"] *= 1 - 0.85 * w
     b.mix("scatter", w, rng.uniform(1.05, 1.25))            # dense collagen
     active = rng.random() < 0.45
+    margin = w * (1 - smoothstep(0.0, 0.35 * top, sd))      # the margin grows, so it is redder
+    mottle = 0.8 + 0.2 * c.noise(R / 3, 2)
     if active:
-        b.erythema(w * (0.85 + 0.15 * c.noise(R / 3, 2)), rng.uniform(1.5, 3.0))
+        b.erythema(np.clip(w * mottle + 0.3 * margin, 0, 1.3), rng.uniform(1.5, 3.0))
     else:
-        b.erythema(w, rng.uniform(0.2, 0.8))
-        b.f["melanin"] *= 1 + rng.uniform(0.1, 0.5) * w
+        b.erythema(w * mottle + 0.5 * margin, rng.uniform(0.2, 0.8))
+        b.f["melanin"] *= 1 + rng.uniform(0.1, 0.5) * w * mottle
     n = int(rng.integers(1, 5))
     around = rng.uniform(0, 2 * np.pi, n)
     starts = R * 0.5 * aspect * np.stack([np.cos(around), np.sin(around)], 1)
@@ -1225,7 +1243,8 @@ def _kaposi_sarcoma(b, rng, R):
             b.f["dermal_melanin"] += 0.003 * ring
         if stage != "patch":
             h = rng.uniform(0.2, 0.5) if stage == "plaque" else min(0.35 * r, 3.0)
-            b.f["height"] = np.maximum(b.f["height"], h * smoothstep(-r * 0.05, r * 0.5, sd))
+            # a dome, not a mesa (a flat top caught the whole flash as one white disc)
+            b.f["height"] = np.maximum(b.f["height"], h * dome(sd > -0.05 * r))
             b.f["gloss"] = np.maximum(b.f["gloss"], 0.12 * w)
             b.f["detail"] *= 1 - (0.3 if stage == "plaque" else 0.7) * w
         b.outline(w, 0.4)
@@ -1239,16 +1258,26 @@ def _granuloma_annulare(b, rng, R):
     the elbows and the shins. The ring is outlined with its centre."""
     c = b.c
     width = R * rng.uniform(0.15, 0.3)
-    ring = c.shape("annular", R - width / 2, aspect=rng.uniform(0.7, 1.0), irregular=0.15, warp=0.05,
-                   width=width)
-    w_ring = b.weight(ring, width * 0.3)
-    beads = smoothstep(-0.4, 0.9, c.noise(float(np.clip(width * 0.6, 1.0, 4.0)), 1))   # papules
-    b.f["height"] += rng.uniform(0.3, 0.6) * w_ring * (0.4 + 0.6 * beads)
-    b.erythema(w_ring * (0.6 + 0.4 * beads), rng.uniform(1.0, 2.5), oxygen=rng.uniform(0.55, 0.75))
+    # papules side by side round a wobbly ring, overlapping enough to coalesce, each a low
+    # dome (round top, soft edge): a beaded ring with a scalloped edge, not a tube
+    mid, aspect, turn = R - width / 2, rng.uniform(0.7, 1.0), rng.uniform(0, np.pi)
+    n = max(8, int(2 * np.pi * mid / (width * 0.7)))
+    t = (np.arange(n) + rng.uniform(-0.25, 0.25, n)) * 2 * np.pi / n
+    radius = mid * (1 + sum(0.12 * rng.normal() / k * np.cos(k * t + rng.uniform(0, 2 * np.pi))
+                            for k in (2, 3, 4)))
+    u, v = radius * np.cos(t), aspect * radius * np.sin(t)
+    centres = np.stack([u * np.cos(turn) - v * np.sin(turn), u * np.sin(turn) + v * np.cos(turn)], 1)
+    radii = width / 2 * rng.uniform(0.7, 1.15, n)
+    sd, which = spots(c, centres, radii, irregular=0.1)
+    s = np.clip(sd / radii[np.maximum(which, 0)], 0.0, 1.0)
+    papule = cv2.GaussianBlur(1 - (1 - s) ** 2, (0, 0), max(0.5, 0.1 * width / c.px))
+    b.f["height"] += min(rng.uniform(0.3, 0.6), 0.3 * width) * papule   # low: at most r x 0.6
+    w_ring = b.weight(sd, width * 0.3, "ill-defined")
+    b.erythema(w_ring * (0.7 + 0.3 * papule), rng.uniform(1.0, 2.5), oxygen=rng.uniform(0.55, 0.75))
     b.f["melanin"] *= 1 + rng.uniform(0.1, 0.5) * w_ring
     b.mix("scatter", w_ring, 1.1)
     b.f["detail"] *= 1 - 0.5 * w_ring
-    b.f["gloss"] = np.maximum(b.f["gloss"], 0.1 * w_ring)
+    b.f["gloss"] = np.maximum(b.f["gloss"], 0.1 * papule)
     # the centre: what the ring closes round, faintly dusky
     closed = ndimage.binary_fill_holes(w_ring > 0.35)
     w_centre = cv2.GaussianBlur((closed & (w_ring <= 0.35)).astype(np.float32), (0, 0),
