@@ -91,9 +91,14 @@ def lesion_atlas(folder, seed=0, tile=224, resolution=384):
     a phone flash and under an oblique room light (rows), rendered as the views are
     (skin shading, relief, micro-detail, decals), the outline drawn on the first."""
     import glsynth as gs
+    from ..config import ViewsConfig
     from .morphology import PRESETS, make_condition
     os.makedirs(folder, exist_ok=True)
     r = gs.Renderer(tile, tile)
+    # the skin's gloss in the middle of what views draw (a glossier atlas showed flat
+    # lesions washed white by the flash, which views seldom do)
+    views = ViewsConfig()
+    material = gs.Material(model="skin", roughness=float(np.mean(views.roughness)), oil=float(np.mean(views.oil)))
     paths = []
     for preset in tqdm(PRESETS, desc="lesion atlas", unit="preset"):
         fields = make_condition(preset, [seed, 1], size=resolution)
@@ -110,7 +115,7 @@ def lesion_atlas(folder, seed=0, tile=224, resolution=384):
                                    diffuse=1.0)])):
                 out = r.render(mesh, cam, passes=("rgb", "labels"), label_textures={"instances":
                                np.zeros((8, 8), np.uint16)}, decal_labels="instances", lights=lights,
-                               material=gs.Material(model="skin", roughness=0.4, oil=0.5),
+                               material=material,
                                multisample=4)
                 img = (np.clip(out["rgb"], 0, 1) * 255).astype(np.uint8)
                 if row == 0 and fitz == 1:
