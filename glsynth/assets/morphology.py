@@ -1267,7 +1267,10 @@ def _granuloma_annulare(b, rng, R):
                             for k in (2, 3, 4)))
     u, v = radius * np.cos(t), aspect * radius * np.sin(t)
     centres = np.stack([u * np.cos(turn) - v * np.sin(turn), u * np.sin(turn) + v * np.cos(turn)], 1)
-    radii = width / 2 * rng.uniform(0.7, 1.15, n)
+    radii = width / 2 * rng.uniform(0.55, 1.2, n)
+    keep = rng.random(n) > 0.12                  # a papule or two missing: gaps in the ring
+    keep[0] = True
+    centres, radii = centres[keep], radii[keep]
     sd, which = spots(c, centres, radii, irregular=0.1)
     s = np.clip(sd / radii[np.maximum(which, 0)], 0.0, 1.0)
     papule = cv2.GaussianBlur(1 - (1 - s) ** 2, (0, 0), max(0.5, 0.1 * width / c.px))
@@ -1278,8 +1281,11 @@ def _granuloma_annulare(b, rng, R):
     b.mix("scatter", w_ring, 1.1)
     b.f["detail"] *= 1 - 0.5 * w_ring
     b.f["gloss"] = np.maximum(b.f["gloss"], 0.1 * papule)
-    # the centre: what the ring closes round, faintly dusky
-    closed = ndimage.binary_fill_holes(w_ring > 0.35)
+    # the centre: what the ring closes round (bridging a missing papule), faintly dusky
+    k = 2 * int(1.5 * width / c.px) + 1
+    ring_px = cv2.morphologyEx((w_ring > 0.35).astype(np.uint8), cv2.MORPH_CLOSE,
+                               cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+    closed = ndimage.binary_fill_holes(ring_px)
     w_centre = cv2.GaussianBlur((closed & (w_ring <= 0.35)).astype(np.float32), (0, 0),
                                 max(1.0, width * 0.2 / c.px))
     b.erythema(w_centre * rng.uniform(0.0, 0.3), 0.5, oxygen=0.6)
