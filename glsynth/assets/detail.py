@@ -262,9 +262,10 @@ def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
     um = period * 1e6 / size
     area_cm2 = (period * 100) ** 2
     groups = []
-    for g in range(2):   # terminal: ~8 hairs / cm2 per group, 3-12 mm long, 50-90 um thick,
-        c = np.zeros((size, size), np.uint8)   # bent by up to ~50 degrees along their length
-        _draw_strands(c, rng, int(8 * area_cm2), (3.0, 12.0), (50, 90), 20, 0.45, um, size)
+    for g in range(2):   # terminal: ~14 hairs / cm2 per group, 4-14 mm long (under the
+        c = np.zeros((size, size), np.uint8)   # tile's period), 50-90 um thick, leaving the
+        # flow by ~30 degrees and bent by up to ~80 along their length, so they cross
+        _draw_strands(c, rng, int(14 * area_cm2), (4.0, 14.0), (50, 90), 30, 0.7, um, size)
         groups.append(c)
     for g in range(2):   # vellus: ~40 hairs / cm2 per group, 0.6-2.5 mm, 15-30 um
         c = np.zeros((size, size), np.uint8)
