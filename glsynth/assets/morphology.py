@@ -1044,8 +1044,9 @@ def _lichen_planus(b, rng, R):
         b.f["dermal_melanin"] += w * rng.uniform(0.005, 0.02)
         # flat-topped; merging papules make one plateau, not stacked ones
         b.f["height"] = np.maximum(b.f["height"], 0.12 * smoothstep(-r * 0.05, r * 0.25, sd))
-        b.f["gloss"] = np.maximum(b.f["gloss"], 0.25 * w)
-        b.f["detail"] *= 1 - 0.5 * w
+        # shiny, not a mirror: a flat plaque facing a flash at 0.25 turned silver-white
+        b.f["gloss"] = np.maximum(b.f["gloss"], 0.15 * w)
+        b.f["detail"] *= 1 - 0.35 * w
         b.outline(w, 0.35, instance=1 if confluent else None)
     cover = np.clip(b.f["height"] / 0.12, 0, 1)
     striae = (1 - smoothstep(0.0, 0.12, np.abs(c.noise(max(0.5, R / 25), 1)))) * cover
