@@ -804,9 +804,11 @@ def test_discoid_lupus_has_a_scaly_dark_rim_around_a_pale_scar_with_plugs(rng):
     for seed in rng.integers(2 ** 31, size=10):
         f = make_condition("lupus", [int(seed)], size=256)
         d = ndimage.distance_transform_edt(f.mask)
-        rim, centre, scar = f.mask & (d < 0.15 * d.max()), d > 0.75 * d.max(), d > 0.4 * d.max()
+        rim, centre, scar = f.mask & (d < 0.15 * d.max()), d > 0.75 * d.max(), d > 0.5 * d.max()
         m = f.f["melanin"]
-        # (the scar as a whole: an island of pigment may fill the few centre pixels)
+        # (the scar as a whole: an island of pigment may fill the few centre pixels; from
+        # half the depth in, as the scar drawn 0.7 of the radius wide reaches there fully:
+        # from 0.4 in, 2 of 301 draws took in the rim's pigmented edge and failed)
         assert np.median(m[rim]) > 1.2 and np.median(m[scar]) < 1.0     # islands of pigment stay
         assert (m[scar] < 0.5).mean() > 0.2                                 # a depigmented scar
         assert np.median(f.f["height"][rim]) > np.median(f.f["height"][centre])
