@@ -1283,9 +1283,9 @@ def _granuloma_annulare(b, rng, R):
     b.f["detail"] *= 1 - 0.5 * w_ring
     b.f["gloss"] = np.maximum(b.f["gloss"], 0.1 * papule)
     # the centre: what the ring closes round (bridging a missing papule), faintly dusky
-    k = 2 * int(1.5 * width / c.px) + 1
+    bridge = 2 * int(1.5 * width / c.px) + 1
     ring_px = cv2.morphologyEx((w_ring > 0.35).astype(np.uint8), cv2.MORPH_CLOSE,
-                               cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+                               cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (bridge, bridge)))
     closed = ndimage.binary_fill_holes(ring_px)
     w_centre = cv2.GaussianBlur((closed & (w_ring <= 0.35)).astype(np.float32), (0, 0),
                                 max(1.0, width * 0.2 / c.px))
