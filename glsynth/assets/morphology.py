@@ -859,32 +859,38 @@ def _lupus(b, rng, R):
 
 
 def _pyogenic_granuloma(b, rng, R):
-    """Pyogenic granuloma (lobular capillary haemangioma): a domed, often lobulated,
-    friable papule, crimson to raspberry (much blood, little collagen to scatter), its
-    epidermis stretched thin, glistening and eroded in places, sometimes under dark dried
-    blood, in half of draws with a fine collarette of scale at its base. Round, so a
-    flash leaves a small highlight on it, not a mirror."""
+    """Pyogenic granuloma (lobular capillary haemangioma): a domed, friable papule,
+    crimson to raspberry (much blood, little collagen to scatter), smooth and glistening:
+    its epidermis is stretched thin, so the skin's markings are gone from it, and it is
+    eroded in places, sometimes under dark dried blood. Three in five are lobulated,
+    with broad shallow dimples between two to four lobules; half have a fine collarette
+    of scale at the base. Round, so a flash leaves a small highlight on it."""
     c = b.c
-    sd = c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.04, warp=0.02)
+    sd = c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.08, warp=0.0)
     w = b.weight(sd, R * 0.08)
-    # lobules a third to a half of the lesion across, each its own shade from crimson
-    # to dark raspberry (its vessels more or less full and oxygenated); the clefts
-    # between them deeper and darker; fine capillaries speckle each lobule
-    wall, shade, _ = b.cells(R * rng.uniform(0.6, 1.0))
-    lobes = smoothstep(0.0, 0.35, wall)
-    cleft = (1 - smoothstep(0.0, 0.12, wall)) * rng.uniform(0.3, 0.7)
-    speckle = smoothstep(0.5, 1.5, c.noise(max(0.15, R * 0.04), 1))
+    s = np.clip(sd / R, 0.0, 1.0)
+    # lobules: each its own shade from crimson to dark raspberry (its vessels more or
+    # less full and oxygenated), the surface dipping broadly between them; until
+    # 2026-11-29 every lesion had narrow clefts that, with the skin's markings left on
+    # it, made a wax seal of it. Unlobulated ones vary in shade smoothly
+    lobulated = rng.random() < 0.6
+    if lobulated:
+        wall, shade, _ = b.cells(R * rng.uniform(0.9, 1.4))
+        dimple = (1 - smoothstep(0.0, 0.3, wall)) * rng.uniform(0.5, 1.0)
+    else:
+        dimple, shade = np.zeros_like(s), smoothstep(-1.0, 1.0, c.noise(R * 0.7, 1))
+    speckle = smoothstep(0.5, 1.5, c.noise(max(0.15, R * 0.04), 1))   # fine capillaries
     raw = smoothstep(-0.4, 0.6, c.noise(R * 0.4, 2)) * rng.uniform(0.5, 1.0)   # eroded surface
     b.mix("epidermis", w, rng.uniform(0.3, 0.6))               # stretched thin over the dome
     b.erode(w * raw, 0.0)
     b.f["blood_add"] += w * ((rng.uniform(0.45, 0.75) - ERODED_BLOOD * raw) * (0.75 + 0.5 * shade)
-                             * (1 + 0.3 * cleft) + 0.15 * speckle)
-    b.mix("oxygen", w, rng.uniform(0.8, 0.92) - 0.35 * shade * rng.uniform(0.4, 1.0) - 0.15 * cleft
-          - 0.2 * speckle)
+                             * (1 + 0.2 * dimple) + 0.1 * speckle)
+    b.mix("oxygen", w, rng.uniform(0.8, 0.92) - 0.35 * shade * rng.uniform(0.4, 1.0) - 0.1 * dimple
+          - 0.08 * speckle)
     b.mix("scatter", w, rng.uniform(0.08, 0.2))               # vessels, little collagen
     b.f["melanin"] *= 1 - 0.8 * w                              # the epidermis over it is thin
-    s = np.clip(sd / R, 0.0, 1.0)
-    dome = np.sqrt(s * (2 - s)) * (0.92 + 0.08 * lobes) - 0.12 * cleft * s
+    b.f["detail"] *= 1 - 0.85 * w                              # stretched smooth
+    dome = np.sqrt(s * (2 - s)) - 0.15 * dimple * s
     b.f["height"] += rng.uniform(0.5, 0.9) * R * dome * w
     b.f["gloss"] = np.maximum(b.f["gloss"], w * (0.45 + 0.35 * raw))
     if rng.random() < 0.4:                                     # friable: it has bled
@@ -894,7 +900,8 @@ def _pyogenic_granuloma(b, rng, R):
     if collarette:
         b.scale(smoothstep(R * 0.08, 0, np.abs(sd + R * 0.03)), 0.5, 0.25, "white")
     b.outline(w, 0.4)
-    return {"crust_rgb": CRUST_COLOURS["haemorrhagic"], "collarette": collarette}
+    return {"crust_rgb": CRUST_COLOURS["haemorrhagic"], "collarette": collarette,
+            "lobulated": lobulated}
 
 
 def _purpura(b, rng, R):
