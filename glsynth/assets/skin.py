@@ -210,6 +210,12 @@ def _ageing(age: float, start: float = 0.75) -> float:
     return float(np.clip((age - start) / (1.0 - start), 0, 1))
 
 
+def _photoprotection(ita: float) -> float:
+    """How much of fair skin's photo-ageing a skin of this ITA shows: all of it in the
+    bands of types I-II (ITA above 45), a third at type VI (below -30), linear between."""
+    return 0.3 + 0.7 * float(np.clip((ita + 30.0) / 75.0, 0.0, 1.0))
+
+
 def _smoothstep(e0, e1, x):
     t = np.clip((np.asarray(x, np.float32) - e0) / (e1 - e0), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
@@ -502,9 +508,12 @@ class _Painter:
 
     def _photoageing(self):
         """Per texel 0..1: sun damage, from age (it starts earlier than the other signs of
-        age) and exposure (the exposed parts, shoulders and the upper chest and back)."""
+        age), exposure (the exposed parts, shoulders and the upper chest and back) and
+        melanin, which shields the dermis: wrinkles and lentigines come a decade or two
+        later and stay milder in brown and black skin (`_photoprotection`)."""
         up = self.tx.ch["torso"] * _smoothstep(0.2, 0.8, self.tx.nrm[:, 1])
-        return _ageing(self.look.age, start=0.6) * np.clip(self._exposed() + 0.5 * up, 0, 1)
+        return (_ageing(self.look.age, start=0.6) * _photoprotection(self.look.ita)
+                * np.clip(self._exposed() + 0.5 * up, 0, 1))
 
     def detail_params(self, nevi_mask):
         """Per texel: the skin shading's relief, pore, hair-density and oiliness levels
