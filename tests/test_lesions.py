@@ -1072,3 +1072,25 @@ def test_actinic_keratoses_are_scaly_red_patches(rng):
         f = make_condition("actinic_keratosis", [int(seed)], size=256)
         m = f.mask
         assert np.median(f.f["blood_add"][m]) > 0.05 and f.f["scale"][m].mean() > 0.05
+
+
+def test_acne_mixes_inflamed_lesions_with_unlabelled_comedones(rng):
+    """Acne is not one kind of red dome: over a few draws there are papules, pustules and
+    nodules; a pustule's head is paler and yellower than the red papule round it; open
+    comedones darken pores away from the outlined lesions, and stay skin."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    counts = {"papules": 0, "pustules": 0, "nodules": 0}
+    for seed in rng.integers(2 ** 31, size=8):
+        f = make_condition("acne", [int(seed)], size=256)
+        for k in counts:
+            counts[k] += f.params[k]
+        away = ~ndimage.binary_dilation(f.mask, iterations=3)
+        if f.params["comedones"] >= 10:
+            assert np.count_nonzero(away & (f.f["melanin_add"] > 0.1)) > 0, f.params
+        head, red = f.f["scale"] > 0.3, f.mask & (f.f["scale"] < 0.02) & (f.f["melanin_add"] < 0.01)
+        if head.sum() > 10:
+            lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 256, np.random.default_rng(int(seed)))))
+            (l_h, a_h, b_h), (l_r, a_r, _) = np.median(lab[head], 0), np.median(lab[red], 0)
+            assert l_h > l_r + 5 and a_h < a_r - 5 and b_h > 10, (np.median(lab[head], 0), np.median(lab[red], 0))
+    assert min(counts.values()) > 0, counts

@@ -47,7 +47,8 @@ NEUTRAL = {"melanin": 1.0, "melanin_add": 0.0, "blood": 1.0, "blood_add": 0.0, "
            "dermal_melanin": 0.0, "scatter": 1.0,
            "bilirubin": 0.0, "epidermis": 1.0, "scale": 0.0, "crust": 0.0, "crust_dark": 0.0, "height": 0.0,
            "gloss": 0.0, "detail": 1.0}
-SCALE_COLOURS = {"white": (236, 232, 226), "silvery": (214, 218, 222), "greasy": (205, 178, 120)}
+SCALE_COLOURS = {"white": (236, 232, 226), "silvery": (214, 218, 222), "greasy": (205, 178, 120),
+                 "pus": (232, 216, 168)}
 CRUST_COLOURS = {"honey": (196, 140, 58), "haemorrhagic": (88, 28, 24), "serous": (170, 120, 70),
                  "slough": (214, 196, 138)}
 OLD_CRUST = np.array([72, 36, 26]) / 255.0
@@ -651,19 +652,61 @@ def _seb_keratosis(b, rng, R):
 
 
 def _acne(b, rng, R):
+    """Acne vulgaris: inflamed papules and pustules, now and then a nodule, scattered
+    among comedones and the flat marks that healed lesions leave: pink on light skin
+    (post-inflammatory erythema), brown and lasting on darker skin (post-inflammatory
+    hyperpigmentation). A dermatologist outlines the inflamed lesions, each its own
+    instance; comedones and marks stay skin. Until 2026-11-29 every lesion was the same
+    red dome, two in five with a tan plate of scale for a head, on otherwise clear skin."""
     c = b.c
+    kinds = []
     for p in arrange(c, "widespread", int(rng.integers(6, 25)), R, R * 0.1):
-        r = rng.uniform(0.8, 2.5)
-        sd = c.shape("round", r, centre=p, irregular=0.05, warp=0.02)
+        kind = str(rng.choice(["papule", "pustule", "nodule"], p=[0.55, 0.35, 0.1]))
+        r = rng.uniform(2.5, 4.5) if kind == "nodule" else rng.uniform(0.8, 2.2)
+        sd = c.shape("round", r, centre=p, irregular=0.08, warp=0.02)
         w = b.weight(sd, r * 0.6, "ill-defined")
-        b.erythema(w, rng.uniform(2.0, 4.5))
-        b.f["height"] = np.maximum(b.f["height"], rng.uniform(0.3, 0.9) * smoothstep(-r * 0.3, r * 0.6, sd))
-        if rng.random() < 0.4:                                          # pustule
-            head = b.weight(c.shape("round", r * 0.35, centre=p, irregular=0.0), r * 0.1)
-            b.scale(head, 1.0, 0.2, "greasy")
-            b.f["gloss"] = np.maximum(b.f["gloss"], 0.6 * head)
+        if kind == "nodule":          # deep in the dermis: broad, dusky red, taut and smooth
+            b.erythema(w, rng.uniform(3.0, 5.0), oxygen=rng.uniform(0.55, 0.7))
+            b.f["height"] = np.maximum(b.f["height"], rng.uniform(0.8, 1.5) * smoothstep(-r * 0.3, r * 0.8, sd))
+            b.f["detail"] *= 1 - 0.5 * w
+            b.f["gloss"] = np.maximum(b.f["gloss"], 0.15 * w)
+        else:
+            b.erythema(w, rng.uniform(2.0, 4.5))
+            b.f["height"] = np.maximum(b.f["height"], rng.uniform(0.3, 0.9) * smoothstep(-r * 0.3, r * 0.6, sd))
+        if kind == "pustule":         # a yellow-white head of pus under a thin, tense roof
+            head = b.weight(c.shape("round", r * rng.uniform(0.3, 0.5), centre=p, irregular=0.05, warp=0.0),
+                            r * 0.35, "ill-defined")
+            b.f["blood_add"] *= 1 - 0.6 * head
+            b.f["scale"] = np.maximum(b.f["scale"], rng.uniform(0.45, 0.75) * head)
+            b.f["gloss"] = np.maximum(b.f["gloss"], 0.4 * head)
         b.outline(w, 0.45)
-    return {"scale_rgb": SCALE_COLOURS["greasy"], "arrangement": "widespread"}
+        kinds.append(kind)
+    # comedones, unlabelled: open ones a dark keratin plug in a pore, closed ones a small
+    # whitish bump
+    pts = arrange(c, "widespread", int(rng.integers(5, 40)), R, 0.6)
+    comedones = len(pts)
+    if pts:
+        open_ = rng.random(len(pts)) < 0.5
+        radii = np.where(open_, rng.uniform(0.12, 0.3, len(pts)), rng.uniform(0.3, 0.6, len(pts)))
+        sd, index = spots(c, pts, radii, irregular=0.1)
+        dot = smoothstep(-0.3, 0.3, sd / radii[index].astype(np.float32)) * (index >= 0)
+        is_open = open_[index] & (index >= 0)
+        b.f["melanin_add"] += np.where(is_open, rng.uniform(0.25, 0.45) * dot, 0)
+        closed = np.where(is_open, 0, dot)
+        b.mix("scatter", closed, 1.25)
+        b.f["height"] = np.maximum(b.f["height"], 0.15 * closed)
+    # healed lesions' flat marks, unlabelled: redness (shows on light skin) and melanin
+    # (in proportion to the skin's own, so it shows most on darker skin)
+    pts = arrange(c, "widespread", int(rng.integers(2, 12)), R, 2.0)
+    if pts:
+        radii = rng.uniform(0.8, 2.0, len(pts))
+        sd, index = spots(c, pts, radii, irregular=0.2)
+        mark = smoothstep(-0.4, 0.4, sd / radii[index].astype(np.float32)) * (index >= 0)
+        b.erythema(mark, rng.uniform(0.5, 1.5))
+        b.f["melanin"] *= 1 + rng.uniform(0.15, 0.5) * mark
+    return {"scale_rgb": SCALE_COLOURS["pus"], "arrangement": "widespread",
+            "papules": kinds.count("papule"), "pustules": kinds.count("pustule"),
+            "nodules": kinds.count("nodule"), "comedones": comedones}
 
 
 def _urticaria(b, rng, R):
