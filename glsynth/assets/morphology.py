@@ -1263,7 +1263,7 @@ def _herpes(b, rng, R):
                 b.f["gloss"] = np.maximum(b.f["gloss"], 0.7 * v)
         bases = np.maximum(bases, w)
     b.outline(bases, 0.35)          # one lesion per connected cluster (make_condition splits)
-    colour = (236, 232, 226) if "vesicles" in stages else SCALE_COLOURS["greasy"]
+    colour = SCALE_COLOURS["white"] if "vesicles" in stages else SCALE_COLOURS["pus"]
     return {"kind": "zoster" if zoster else "simplex", "clusters": len(centres), "stages": stages,
             "scale_rgb": colour, "crust_rgb": CRUST_COLOURS[crust]}
 
