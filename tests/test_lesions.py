@@ -1067,11 +1067,15 @@ def test_dome_is_round_topped_without_a_crease_along_its_middle(rng):
 
 
 def test_actinic_keratoses_are_scaly_red_patches(rng):
+    """Red (added blood) and scaly over their outline. Scale is patchy, so its mean over
+    the outline is 0.037-0.08 or more (150 draws; 7% under 0.05, which this test used to
+    demand, so a run of three draws failed about one time in five); a preset without
+    scale has 0."""
     from glsynth.assets.morphology import make_condition
     for seed in rng.integers(2 ** 31, size=3):
         f = make_condition("actinic_keratosis", [int(seed)], size=256)
         m = f.mask
-        assert np.median(f.f["blood_add"][m]) > 0.05 and f.f["scale"][m].mean() > 0.05
+        assert np.median(f.f["blood_add"][m]) > 0.05 and f.f["scale"][m].mean() > 0.025, seed
 
 
 def test_acne_mixes_inflamed_lesions_with_unlabelled_comedones(rng):
