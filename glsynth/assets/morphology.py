@@ -689,8 +689,9 @@ def _acne(b, rng, R):
         open_ = rng.random(len(pts)) < 0.5
         radii = np.where(open_, rng.uniform(0.12, 0.3, len(pts)), rng.uniform(0.3, 0.6, len(pts)))
         sd, index = spots(c, pts, radii, irregular=0.1)
-        dot = smoothstep(-0.3, 0.3, sd / radii[index].astype(np.float32)) * (index >= 0)
-        is_open = open_[index] & (index >= 0)
+        # (index -1, no comedo near: sd there is far below the fade, so dot is 0)
+        dot = smoothstep(-0.3, 0.3, sd / radii[index].astype(np.float32))
+        is_open = open_[index]
         b.f["melanin_add"] += np.where(is_open, rng.uniform(0.25, 0.45) * dot, 0)
         closed = np.where(is_open, 0, dot)
         b.mix("scatter", closed, 1.25)
@@ -701,7 +702,7 @@ def _acne(b, rng, R):
     if pts:
         radii = rng.uniform(0.8, 2.0, len(pts))
         sd, index = spots(c, pts, radii, irregular=0.2)
-        mark = smoothstep(-0.4, 0.4, sd / radii[index].astype(np.float32)) * (index >= 0)
+        mark = smoothstep(-0.4, 0.4, sd / radii[index].astype(np.float32))
         b.erythema(mark, rng.uniform(0.5, 1.5))
         b.f["melanin"] *= 1 + rng.uniform(0.15, 0.5) * mark
     return {"scale_rgb": SCALE_COLOURS["pus"], "arrangement": "widespread",
