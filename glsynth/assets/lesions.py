@@ -8,6 +8,7 @@ the same size.
 from __future__ import annotations
 
 import csv
+import functools
 import logging
 import os
 import re
@@ -395,12 +396,30 @@ KINDS = tuple(PRESETS)
 _REFERENCE_MELANIN = {1: 0.0074, 2: 0.03, 3: 0.051, 4: 0.082, 5: 0.166, 6: 0.29}
 
 
-@dataclass
 class FieldLesion(Lesion):
     """A procedural condition: ``fields`` (a morphology.LesionFields) holds what it does
     to the skin; ``image``/``mask`` show it on a reference skin, one pixel per grid
-    cell, the mask being the outline a dermatologist would draw."""
-    fields: object = None
+    cell, the mask being the outline a dermatologist would draw. The pipeline paints
+    the body's own skin from ``fields``, so ``image`` is painted only when first read
+    (~2 s for a 512-cell grid)."""
+
+    def __init__(self, fields, id: str, meta: dict, fitzpatrick: int):
+        self.fields, self.id, self.meta = fields, id, meta
+        self.mask = fields.mask.copy()
+        self._fitzpatrick, self._image = int(fitzpatrick), None
+        if not self.mask.any():
+            raise EmptyMaskError(f"lesion {id}: mask is empty")
+
+    @property
+    def image(self) -> np.ndarray:
+        if self._image is None:
+            seed = [int(self.meta["seed"]), int(self.meta["index"]), 1]
+            skin = reference_skin(self._fitzpatrick, self.fields.size, np.random.default_rng(seed))
+            self._image = apply_to_skin(self.fields, skin)
+        return self._image
+
+    def __repr__(self):
+        return f"FieldLesion({self.id!r})"
 
 
 def fractal_noise(rng: np.random.Generator, shape, scale: float, octaves: int = 4,
@@ -476,13 +495,18 @@ class ProceduralLesions(Sequence):
         rng = np.random.default_rng([self.seed, i])
         kind = self.kind(i)
         fitz = int(self.types[rng.integers(len(self.types))])
-        fields = make_condition(kind, [self.seed, i], size=self.size)
-        image = apply_to_skin(fields, reference_skin(fitz, self.size, rng))
+        fields = _condition(kind, self.seed, i, self.size)
         meta = {"kind": kind, "preset": kind, "seed": self.seed, "index": i, "fitzpatrick": fitz,
                 "grid": self.size, "extent_mm": round(fields.extent_mm, 2),
                 "instances": int(fields.instances.max()), "params": fields.params}
-        return FieldLesion(image, fields.mask.copy(), f"procedural-{kind}-{self.seed}-{i}", meta,
-                           fields=fields)
+        return FieldLesion(fields, f"procedural-{kind}-{self.seed}-{i}", meta, fitz)
+
+
+@functools.lru_cache(maxsize=16)
+def _condition(preset: str, seed: int, index: int, grid: int):
+    """Procedural lesion ``index`` of a run's ``seed``. Cached: a worker pastes a body's
+    lesions and builds their decals moments apart (~2 s each to make; ~16 MB at 512)."""
+    return make_condition(preset, [seed, index], size=grid)
 
 
 def procedural_lesions(n: int, seed: int = 0, size: int = 256, kinds=None,
@@ -495,10 +519,9 @@ def lesion_from_meta(meta: dict) -> Lesion:
     """The lesion a placement recorded (its ``lesion_meta``): a procedural condition made
     again from its preset, seed and index, or a lesion image read again from its files."""
     if meta.get("preset"):
-        fields = make_condition(meta["preset"], [int(meta["seed"]), int(meta["index"])],
-                                size=int(meta.get("grid", 256)))
-        return FieldLesion(np.zeros(fields.mask.shape + (3,), np.uint8), fields.mask.copy(),
-                           f"procedural-{meta['preset']}-{meta['seed']}-{meta['index']}", meta,
-                           fields=fields)
+        fields = _condition(meta["preset"], int(meta["seed"]), int(meta["index"]),
+                            int(meta.get("grid", 256)))
+        return FieldLesion(fields, f"procedural-{meta['preset']}-{meta['seed']}-{meta['index']}",
+                           meta, meta.get("fitzpatrick", 3))
     return load_lesion(meta["image_path"], meta["mask_path"], meta.get("id"), meta,
                        colour_constancy=bool(meta.get("colour_constancy")))
