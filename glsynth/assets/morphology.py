@@ -1072,9 +1072,15 @@ def _pigmented_patch(b, rng, R):
     sd = c.shape("round", R, aspect=rng.uniform(0.5, 0.95), irregular=0.35 if jagged else 0.08,
                  warp=0.2 if jagged else 0.06)
     w = b.weight(sd, R * 0.06)
-    b.f["melanin_add"] += w * rng.uniform(0.03, 0.14) * (1 + 0.12 * c.noise(max(0.8, R / 6), 2))
+    # light brown as a rule: melanin added (what shows on fair skin) and multiplied (an
+    # added amount hardly shows on dark skin), L* 5-20 below the skin round it on types
+    # II and V (median ~10 and ~13). Real cafe-au-lait macules and the dev set's flat brown
+    # patches sit ~10 below; 0.03-0.14 added made them 14-38 below on types I-III
+    add = float(np.exp(rng.uniform(np.log(0.008), np.log(0.05))))
+    b.f["melanin_add"] += w * add * (1 + 0.12 * c.noise(max(0.8, R / 6), 2))
+    b.f["melanin"] *= 1 + w * rng.uniform(0.15, 0.8)
     b.outline(w, 0.35)
-    return {"border": "jagged" if jagged else "smooth"}
+    return {"border": "jagged" if jagged else "smooth", "melanin_add": round(add, 4)}
 
 
 def _lichen_planus(b, rng, R):
