@@ -992,6 +992,30 @@ def test_keloids_are_smooth_shiny_domes_higher_inside_than_at_the_edge(rng):
         assert np.median(f.f["detail"][m]) < 0.3 and np.median(f.f["gloss"][m]) > 0.1
 
 
+def test_keloids_end_round_not_in_points(rng):
+    """A long keloid without claws is a band with rounded ends: near each end (0.8-0.85
+    of its half-length from the middle) it is still most of its width. A long ellipse's
+    dome ran out to two points, a lozenge: 0-0.58 of the width there, median 0.40 (37
+    draws, all aspects), against 0.55-0.90, median ~0.75, for the band (aspect under 0.45)."""
+    from glsynth.assets.morphology import make_condition
+    ratios = []
+    for seed in rng.integers(2 ** 31, size=80):
+        if len(ratios) == 4:
+            break
+        f = make_condition("keloid", [int(seed)], size=128)
+        if f.params["claws"] or f.params["aspect"] > 0.45:
+            continue
+        pts = np.argwhere(f.mask).astype(np.float64)
+        pts -= pts.mean(0)
+        axes = np.linalg.svd(pts, full_matrices=False)[2]
+        u, v = pts @ axes[0], pts @ axes[1]
+        far = np.abs(u).max()
+        middle = np.ptp(v[np.abs(u) < 0.3 * far])
+        near_ends = (np.abs(u) >= 0.8 * far) & (np.abs(u) < 0.85 * far)
+        ratios.append(min(np.ptp(v[near_ends & (u * side > 0)]) for side in (-1, 1)) / middle)
+    assert len(ratios) >= 2 and np.median(ratios) > 0.6 and min(ratios) > 0.4, np.round(ratios, 3)
+
+
 def test_herpes_vesicles_are_glistening_pale_domes_on_a_red_base_one_instance_per_cluster(rng):
     """Vesicle clusters: the red base is outlined, one instance per cluster (clusters
     that touch merge); vesicles are domes that glisten and hold less of the base's

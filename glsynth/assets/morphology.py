@@ -1189,7 +1189,14 @@ def _keloid(b, rng, R):
     c = b.c
     axis = rng.uniform(0, np.pi)
     aspect = rng.uniform(0.25, 0.7)
-    sd = c.shape("oval", R * 0.8, aspect=aspect, angle=axis, irregular=0.15, warp=0.08)
+    # a band with rounded ends (a stadium), its edge wavy: a long ellipse's dome rose to a
+    # ridge that ran out to two points, a glossy lozenge
+    u = c.x * np.cos(axis) + c.y * np.sin(axis)
+    v = c.y * np.cos(axis) - c.x * np.sin(axis)
+    half = R * 0.8 * aspect                            # half its width
+    straight = R * 0.8 - half                          # half its straight middle's length
+    sd = half * (1 + 0.1 * c.noise(max(R / 3, 2 * c.px), 2)) \
+        - np.hypot(np.maximum(np.abs(u) - straight, 0.0), v)
     claws = int(rng.choice([0, 0, 1, 2, 3]))
     for _ in range(claws):           # tapering, gently curving bands out near the long axis
         a = axis + rng.choice([0.0, np.pi]) + rng.normal(0, 0.5)
@@ -1223,7 +1230,7 @@ def _keloid(b, rng, R):
     vessels = vessel_tree(c, starts, around + np.pi, rng.uniform(0.06, 0.12), R * 0.5, depth=2) * w
     b.erythema(vessels * smoothstep(0.0, R * 0.1, sd), 3.0, 0.85)
     b.outline(w, 0.4)
-    return {"stage": "active" if active else "mature", "claws": claws}
+    return {"stage": "active" if active else "mature", "claws": claws, "aspect": round(aspect, 3)}
 
 
 def _herpes(b, rng, R):
