@@ -1143,3 +1143,23 @@ def test_pigmented_patch_is_light_brown_on_fair_and_dark_skin(rng):
     # (over 16 seeds the medians are ~10 on type II, ~13 on type V; before, ~22 on type II)
     for fitz, d in drops.items():
         assert 3 < min(d) and max(d) < 24 and 6 < np.median(d) < {2: 16, 5: 19}[fitz], (fitz, np.round(d, 1))
+
+
+def test_inflammatory_patches_can_hold_unlabelled_islands_of_spared_skin(rng):
+    """Patch-stage mycosis fungoides and other eruptions leave islands of normal skin in
+    a large patch; the outline leaves them out and they carry none of its redness."""
+    from glsynth.assets.morphology import make_condition
+    seen = 0
+    for seed in rng.integers(2 ** 31, size=60):
+        f = make_condition("inflammatory_patch", [int(seed)], size=192)
+        if not f.params["islands"]:
+            continue
+        holes = ndimage.binary_fill_holes(f.mask) & ~f.mask
+        if holes.sum() < 10:     # an island that reached the patch's edge is a notch
+            continue
+        seen += 1
+        blood = f.f["blood_add"]
+        assert np.median(blood[holes]) < 0.3 * np.median(blood[f.mask]), seen
+        if seen == 3:
+            break
+    assert seen >= 2
