@@ -446,7 +446,7 @@ def reference_skin(fitzpatrick: int, size: int, rng) -> np.ndarray:
 
 
 class ProceduralLesions(Sequence):
-    """``n`` seeded procedural conditions (FieldLesion), made when first indexed: presets
+    """``n`` seeded procedural conditions (FieldLesion), made when indexed: presets
     from ``kinds`` (default: all of KINDS), each shown on a reference skin of a
     Fitzpatrick type drawn from ``fitzpatrick`` (a type, a list, or None for any) on a
     ``size``-cell grid. Lesion i depends only on (seed, i), so a longer set starts with
@@ -468,7 +468,6 @@ class ProceduralLesions(Sequence):
         for t in self.types:
             ita_range(t)  # validates 1..6
         self.n, self.seed, self.size, self.kinds = int(n), int(seed), int(size), kinds
-        self._made = {}
 
     def __len__(self):
         return self.n
@@ -478,12 +477,7 @@ class ProceduralLesions(Sequence):
             return [self[j] for j in range(*i.indices(self.n))]
         if not -self.n <= i < self.n:
             raise IndexError(i)
-        i %= self.n
-        if i not in self._made:
-            if len(self._made) >= 64:
-                self._made.pop(next(iter(self._made)))
-            self._made[i] = self._make(i)
-        return self._made[i]
+        return self._make(i % self.n)   # (its fields come from _condition's cache)
 
     def kind(self, i: int) -> str:
         """The preset of lesion ``i``: position i % len(kinds) in round i // len(kinds)."""

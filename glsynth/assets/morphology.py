@@ -410,8 +410,8 @@ class Builder:
 
 
 # ---- presets ------------------------------------------------------------------------------------
-def _size(rng, lo_mm, hi_mm):
-    return float(np.exp(rng.uniform(np.log(lo_mm), np.log(hi_mm))))
+def _log_uniform(rng, lo, hi):
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
 def _nevus(b, rng, R):
@@ -1076,7 +1076,7 @@ def _pigmented_patch(b, rng, R):
     # added amount hardly shows on dark skin), L* 5-20 below the skin round it on types
     # II and V (median ~10 and ~13). Real cafe-au-lait macules and the dev set's flat brown
     # patches sit ~10 below; 0.03-0.14 added made them 14-38 below on types I-III
-    add = float(np.exp(rng.uniform(np.log(0.008), np.log(0.05))))
+    add = _log_uniform(rng, 0.008, 0.05)
     b.f["melanin_add"] += w * add * (1 + 0.12 * c.noise(max(0.8, R / 6), 2))
     b.f["melanin"] *= 1 + w * rng.uniform(0.15, 0.8)
     b.outline(w, 0.35)
@@ -1487,7 +1487,7 @@ def make_condition(preset: str, seed, size=512, extent_mm=None) -> LesionFields:
     taper = np.minimum.outer(taper, taper)
     for margin in GRID_MARGINS:
         rng = np.random.default_rng(np.atleast_1d(seed).tolist() + [17])
-        extent = float(extent_mm) if extent_mm is not None else _size(rng, lo, hi)
+        extent = float(extent_mm) if extent_mm is not None else _log_uniform(rng, lo, hi)
         canvas = Canvas(rng, int(size), extent * margin)
         b = Builder(canvas)
         extra = build(b, rng, extent / 2) or {}
