@@ -16,7 +16,7 @@ from glsynth.train.evaluate import predict, score, truth_map
 from glsynth.train.loss import (anatomy_jaccard_loss, fuzzy_jaccard_loss, nevi_ignore_mask,
                                 seg_jaccard_loss)
 from glsynth.train.model import SegNet
-from glsynth.train.trainer import load_model, train
+from glsynth.train.trainer import load_model, prefetched, train
 
 TINY = ["bodies.count=1", "bodies.texture_size=512", "lesions.per_body=2", "blend.method=paste",
         "views.per_body=4", "views.size=96", "views.supersample=1", "paste.view_size=256",
@@ -230,6 +230,34 @@ def test_interrupted_training_resumes_to_the_same_weights(synth, tmp_path):
         for k, v in full[key].items():
             assert torch.allclose(v.float(), done[key][k].float(), atol=1e-6), (key, k)
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".tmp-")]
+
+
+def test_prefetching_keeps_order_raises_errors_and_stops_its_thread():
+    import threading
+    import time
+
+    def live():
+        return [t for t in threading.enumerate() if t.name == "glsynth-prefetch"]
+
+    def slow(n):
+        for i in range(n):
+            time.sleep(0.002 * (i % 3))
+            yield i
+    assert list(prefetched(slow(50), depth=3)) == list(range(50))
+
+    def broken():
+        yield 1
+        raise ValueError("bad sample file")
+    got = []
+    with pytest.raises(ValueError, match="bad sample file"):
+        for b in prefetched(broken()):
+            got.append(b)
+    assert got == [1]
+
+    it = prefetched(iter(range(10**6)), depth=2)   # left after 3 of a million batches
+    assert [next(it) for _ in range(3)] == [0, 1, 2]
+    it.close()
+    assert not live()
 
 
 def test_planned_steps_are_fitted_to_the_time(synth, tmp_path):

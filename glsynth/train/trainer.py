@@ -13,6 +13,8 @@ import io
 import logging
 import math
 import os
+import queue
+import threading
 import time
 
 import cv2
@@ -219,6 +221,45 @@ class WeightAverage:
         self.state = live
 
 
+def prefetched(batches, depth=2):
+    """Iterate ``batches`` in a background thread, ``depth`` batches ahead.
+
+    With ``workers=0`` the loader decodes and augments (OpenCV and NumPy, which release
+    the GIL) while the network computes, instead of between its steps; the batches and
+    their order are the same. Closing the generator (or leaving its loop) stops the
+    thread at its next batch."""
+    q, stop, end = queue.Queue(depth), threading.Event(), object()
+
+    def put(item):  # False once the consumer has stopped
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                pass
+        return False
+
+    def fill():
+        try:
+            for b in batches:
+                if not put(b):
+                    return
+            put(end)
+        except BaseException as e:  # raised again in the consumer
+            put(e)
+
+    thread = threading.Thread(target=fill, name="glsynth-prefetch", daemon=True)
+    thread.start()
+    try:
+        while (b := q.get()) is not end:
+            if isinstance(b, BaseException):
+                raise b
+            yield b
+    finally:
+        stop.set()
+        thread.join()
+
+
 def _lr(base, step, total, warmup=20):
     if step < warmup:
         return base * (step + 1) / warmup
@@ -409,7 +450,8 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
         sampler = [[(epoch, *key) for key in b] for b in plan(epoch)[pos:]]
         loader = torch.utils.data.DataLoader(ds, batch_sampler=sampler, num_workers=workers)
         model.train()
-        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{epochs}", initial=pos, total=n_batches,
+        batches = prefetched(loader) if workers == 0 else iter(loader)
+        bar = tqdm(batches, desc=f"epoch {epoch + 1}/{epochs}", initial=pos, total=n_batches,
                    unit="batch", disable=not progress, leave=False)
         for img, seg, anat, ign in bar:
             img, seg, anat, ign = (t.to(device) for t in (img, seg, anat, ign))
@@ -445,6 +487,8 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
                 save_checkpoint(out, state("periodic"))
                 last_save = now
         bar.close()
+        if workers == 0:
+            batches.close()  # stops the prefetching thread when the loop left early
         if pos >= n_batches or step >= total:  # an epoch, or the planned steps, done
             history.append({"epoch": epoch + 1, "step": step,
                             **{k: float(np.mean(v)) if v else None for k, v in running.items()},
