@@ -1229,9 +1229,13 @@ def _keloid(b, rng, R):
         k = 0.3 * half                      # a smooth union: a fillet where a claw leaves
         sd = k * np.logaddexp(sd / k, claw / k)
     w = b.weight(sd, R * 0.05)
-    # rounded shoulders sloping a little past the outline, each claw lower as it narrows
+    # a plateau: steep rounded shoulders and a flat top with low, broad swellings (a dome
+    # over the whole band rose to a tube with a fold along its middle), each claw lower
+    # as it narrows
     top = max(float(sd.max()), 1e-6)
-    b.f["height"] += rng.uniform(1.0, 4.0) * dome(sd > 0) * smoothstep(-0.08 * top, 0.1 * top, sd)
+    lumps = 1 + 0.05 * c.noise(max(R / 1.5, 2 * c.px), 2)
+    b.f["height"] += rng.uniform(1.0, 4.0) * lumps * smoothstep(0.0, 0.9, dome(sd > 0)) \
+        * smoothstep(-0.08 * top, 0.1 * top, sd)
     b.f["gloss"] = np.maximum(b.f["gloss"], rng.uniform(0.12, 0.25) * w)
     b.f["detail"] *= 1 - 0.85 * w
     b.mix("scatter", w, rng.uniform(1.05, 1.25))            # dense collagen
