@@ -295,6 +295,23 @@ def test_every_preset_on_every_skin_type(preset):
             or f.f["height"][m].std() > 0.05, (preset, fitz)
 
 
+def test_skin_inverse_finds_the_nearest_model_colour_whatever_it_saw_before(rng):
+    """The inverse's table is filled as colours first occur: each colour gets the grid
+    point nearest its 6-bit bin's centre in CIELAB (brute force here), whichever calls
+    came before, and the residual is the colour's own Lab minus that point's."""
+    from glsynth.assets.chromophores import SkinInverse, srgb_to_lab
+    inv = SkinInverse()
+    skin = rng.integers([150, 90, 60], [256, 200, 160], (300, 3)).astype(np.uint8)
+    anything = rng.integers(0, 256, (300, 3)).astype(np.uint8)
+    for batch in (skin, anything, np.concatenate([anything[:50], skin[:50]])):
+        mel, blood, resid = inv(batch[:, None])                 # an H x W x 3 image
+        centres = (batch // 4 * 4 + 2).astype(np.uint8)
+        d = ((srgb_to_lab(centres)[:, None] - inv.grid_lab[None]) ** 2).sum(-1)
+        best = d.argmin(1)
+        assert np.array_equal(mel[:, 0], inv.grid_mel[best]) and np.array_equal(blood[:, 0], inv.grid_blood[best])
+        assert np.allclose(resid[:, 0], srgb_to_lab(batch) - inv.grid_lab[best])
+
+
 def test_lentigo_maligna_is_a_large_flat_mottled_brown_macule(rng):
     """Lentigo maligna is flat, several centimetres across, lighter on average than a
     melanoma and mottled: blotches from light tan to dark brown, not one even shade (as a

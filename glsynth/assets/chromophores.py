@@ -243,8 +243,10 @@ class SkinInverse:
     """Nearest (melanin, blood) of the model for sRGB skin colours, by a look-up over a
     grid (melanin 0.002-0.6, blood 0.002-0.2, both log-spaced; oxygen 0.75) matched in
     CIELAB. ``__call__`` returns (melanin, blood, residual Lab = colour - model). The
-    nearest grid point is looked up once per colour at 6 bits a channel (a 64^3 table
-    made on first use); the residual is the colour's own, exactly."""
+    nearest grid point is looked up once per colour at 6 bits a channel, in a 64^3
+    table filled as colours first occur: skin textures use a few thousand of its cells,
+    and the whole cube, mostly colours far from any skin, took ~4 s of nearest-neighbour
+    search per process; the residual is the colour's own, exactly."""
 
     def __init__(self, n_mel=96, n_blood=64):
         self.mel = np.geomspace(0.002, 0.6, n_mel)
@@ -252,21 +254,24 @@ class SkinInverse:
         mm, bb = np.meshgrid(self.mel, self.blood, indexing="ij")
         self.grid_mel, self.grid_blood = mm.ravel(), bb.ravel()
         self.grid_lab = srgb_to_lab(skin_rgb(self.grid_mel, self.grid_blood))
-        self._table = None
+        self._table = np.full(64 ** 3, -1, np.int32)     # -1: not looked up yet
+        self._tree = None
 
-    def _nearest_table(self):
-        if self._table is None:
-            from scipy.spatial import cKDTree
-            levels = (np.arange(64) * 4 + 2).astype(np.uint8)      # centres of the 6-bit bins
-            cube = np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), -1).reshape(-1, 3)
-            _, idx = cKDTree(self.grid_lab).query(srgb_to_lab(cube))
-            self._table = idx.astype(np.int32)
-        return self._table
+    def _nearest(self, codes):
+        """Grid indices for 6-bit colour codes (r << 12 | g << 6 | b), filling the table."""
+        missing = np.unique(codes[self._table[codes] < 0])
+        if missing.size:
+            if self._tree is None:
+                from scipy.spatial import cKDTree
+                self._tree = cKDTree(self.grid_lab)
+            centres = np.stack([missing >> 12, (missing >> 6) & 63, missing & 63], 1) * 4 + 2
+            self._table[missing] = self._tree.query(srgb_to_lab(centres.astype(np.uint8)))[1]
+        return self._table[codes]
 
     def __call__(self, rgb_uint8):
         rgb = np.asarray(rgb_uint8, np.uint8)
         flat = rgb.reshape(-1, 3).astype(np.int32) >> 2
-        idx = self._nearest_table()[(flat[:, 0] << 12) | (flat[:, 1] << 6) | flat[:, 2]]
+        idx = self._nearest((flat[:, 0] << 12) | (flat[:, 1] << 6) | flat[:, 2])
         lab = srgb_to_lab(rgb.reshape(-1, 3))
         shape = rgb.shape[:-1]
         return (self.grid_mel[idx].reshape(shape), self.grid_blood[idx].reshape(shape),
