@@ -298,6 +298,25 @@ def test_one_slow_epoch_does_not_shorten_the_fitted_plan(synth, tmp_path, monkey
     assert ck["stopped"] is None and time.time() - t0 < 0.2 * 60 * 1.5
 
 
+def test_steps_that_slow_down_late_shorten_the_plan(synth, tmp_path, monkeypatch):
+    """From the fifth epoch on every step takes ~0.1 s more: the plan fitted from the
+    fast early epochs is cut at later epoch ends, so the run ends with its schedule
+    complete before the time limit (set, as sim2real sets it, 5% past the minutes)."""
+    import time
+    from glsynth.train.trainer import TrainSet
+    get = TrainSet.__getitem__
+
+    def slow_from_epoch_4(self, key):
+        if key[0] >= 4:
+            time.sleep(0.05)
+        return get(self, key)
+    monkeypatch.setattr(TrainSet, "__getitem__", slow_from_epoch_4)
+    kw = dict(FAST, size=48, seed=5, batch_size=2)   # 2 batches per epoch
+    ck = train(synth, tmp_path / "m.pt", steps=1_000_000, fit_minutes=0.1,
+               time_limit=0.1 * 1.05, **kw)
+    assert ck["stopped"] is None and ck["step"] == ck["hparams"]["steps"] > 8
+
+
 def test_weight_average_follows_its_recurrence_with_the_warm_up():
     from glsynth.train.trainer import WeightAverage
     net = torch.nn.Sequential(torch.nn.Linear(3, 2), torch.nn.BatchNorm1d(2))
