@@ -19,9 +19,10 @@ new, the procedural lesions dealt to them continue the run's sequence, in which 
 round of as many lesions as there are presets holds each preset once (independent
 seeds per part left 4-6 of the 21-22 presets out of a 30-minute run), and its backgrounds
 are its own. Parts are made until the generation share is spent; the training length
-in steps is planned from a short timing of real training steps and fitted once more
-after two epochs of the run itself, so that the learning-rate schedule ends with the
-budget (the short timing alone misjudged long runs by up to a quarter).
+in steps is planned from a short timing of real training steps and fitted again at
+the run's epoch ends (longer only in the schedule's first half, shorter at any time),
+so that the learning-rate schedule ends with the budget (the short timing alone
+misjudged long runs by up to a quarter).
 
 Resumable: each part, the training checkpoint and the plan live in ``OUT``; ``--resume``
 continues where a run stopped and spends what is left of the budget.
