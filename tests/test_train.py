@@ -237,7 +237,7 @@ def test_prefetching_keeps_order_raises_errors_and_stops_its_thread():
     import time
 
     def live():
-        return [t for t in threading.enumerate() if t.name == "glsynth-prefetch"]
+        return [t for t in threading.enumerate() if t.name.startswith("glsynth-prefetch")]
 
     def slow(n):
         for i in range(n):
@@ -254,10 +254,12 @@ def test_prefetching_keeps_order_raises_errors_and_stops_its_thread():
             got.append(b)
     assert got == [1]
 
+    before = set(live())                           # (other helpers may be alive)
     it = prefetched(iter(range(10**6)), depth=2)   # left after 3 of a million batches
     assert [next(it) for _ in range(3)] == [0, 1, 2]
+    assert set(live()) - before                    # its thread runs...
     it.close()
-    assert not live()
+    assert set(live()) <= before                   # ...and is gone
 
 
 def test_planned_steps_are_fitted_to_the_time(synth, tmp_path):

@@ -13,8 +13,6 @@ import io
 import logging
 import math
 import os
-import queue
-import threading
 import time
 
 import cv2
@@ -222,42 +220,23 @@ class WeightAverage:
 
 
 def prefetched(batches, depth=2):
-    """Iterate ``batches`` in a background thread, ``depth`` batches ahead.
-
-    With ``workers=0`` the loader decodes and augments (OpenCV and NumPy, which release
-    the GIL) while the network computes, instead of between its steps; the batches and
-    their order are the same. Closing the generator (or leaving its loop) stops the
-    thread at its next batch."""
-    q, stop, end = queue.Queue(depth), threading.Event(), object()
-
-    def put(item):  # False once the consumer has stopped
-        while not stop.is_set():
-            try:
-                q.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                pass
-        return False
-
-    def fill():
-        try:
-            for b in batches:
-                if not put(b):
-                    return
-            put(end)
-        except BaseException as e:  # raised again in the consumer
-            put(e)
-
-    thread = threading.Thread(target=fill, name="glsynth-prefetch", daemon=True)
-    thread.start()
+    """Iterate ``batches`` ``depth`` batches ahead in the pipeline's helper thread
+    (``Prefetcher``): with ``workers=0`` the loader decodes and augments (OpenCV and
+    NumPy, which release the GIL) while the network computes, instead of between its
+    steps; the batches and their order are the same. Closing the generator (or leaving
+    its loop) drops the batches not begun."""
+    from ..pipeline.prefetch import Prefetcher
+    it, end, pool = iter(batches), object(), Prefetcher()
     try:
-        while (b := q.get()) is not end:
-            if isinstance(b, BaseException):
-                raise b
+        for k in range(depth):
+            pool.start(k, next, it, end)
+        k = 0
+        while (b := pool.get(k, next, it, end)) is not end:
+            pool.start(k + depth, next, it, end)
             yield b
+            k += 1
     finally:
-        stop.set()
-        thread.join()
+        pool.close()
 
 
 def _lr(base, step, total, warmup=20):
