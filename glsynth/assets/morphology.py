@@ -753,7 +753,9 @@ def _vitiligo(b, rng, R):
         lost = lost * (1 - smoothstep(lo, lo + 0.5, c.noise(max(0.5, R / 20), 1)))
     b.mix("melanin", lost, rng.uniform(0.0, 0.04))   # amelanotic: up to 0.12 left type VI skin tan
     b.erythema(lost, rng.uniform(0.1, 0.3))         # the dermis' blood shows without melanin
-    b.outline(w, 0.5)
+    # a warped outline can pinch off islands of normal skin; they lie inside the patch
+    # a dermatologist draws, so they are part of its mask
+    b.outline(ndimage.binary_fill_holes(w > 0.5).astype(np.float32), 0.5)
     return {"trichrome": trichrome, "repigmenting": repigmenting}
 
 
