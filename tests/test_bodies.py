@@ -315,6 +315,52 @@ def test_beards_are_drawn_for_adult_men_only_at_their_shares():
     assert b.beard == "goatee" and {**a.to_dict(), "beard": "goatee"} == b.to_dict()
 
 
+def test_closed_eyes_hide_the_eyeballs_and_move_only_the_lids(default_body, cache):
+    """Closing the eyes folds the lids over the eyeballs (none of the eyeball's front is
+    seen from the front, against hundreds of pixels with the eyes open); only vertices
+    around the eyes move, and the skin texture is the neutral face's."""
+    from gl_context import get_renderer
+    from glsynth.assets.skin import _segment_mask
+    from glsynth.camera import Camera
+    body, _ = default_body
+    assert body.meta["expression"]["eyeBlinkLeft"] <= 0.2         # seed 0: eyes open
+    shut = make_body(seed=0, pose="a-pose", texture_size=SIZE, cache_dir=cache,
+                     expression={"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0})
+    assert shut.meta["expression"] == {"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0}
+    assert np.array_equal(shut.mesh.texture, body.mesh.texture)
+    v0, v1 = body.mesh.vertices, shut.mesh.vertices
+    moved = np.linalg.norm(v1 - v0, axis=1) > 1e-4
+    assert moved.sum() > 100
+    assert (body.anatomy[moved] == 1).all()                         # the head
+    assert np.ptp(v0[moved], axis=0).max() < 0.12      # two eyes' width, not the face
+    eyeball = _segment_mask(SIZE, ["eye_front.L", "eye_front.R"])
+    top, front = v0[:, 1].max(), v0[v0[:, 1] > v0[:, 1].max() - 0.25, 2].max()
+    target = np.array([0.0, v0[moved, 1].mean(), front - 0.03])
+    cam = Camera.look_at(eye=target + [0, 0, 0.4], target=target, fov_deg=20, width=256, height=256)
+    seen = []
+    for b in (body, shut):
+        g = get_renderer(width=256, height=256).render(b.mesh, cam, passes=("gbuffer",))
+        hit = g["face_id"] >= 0
+        uv = g["uv"][hit]
+        col = np.clip((uv[:, 0] * SIZE).astype(int), 0, SIZE - 1)
+        row = np.clip(((1 - uv[:, 1]) * SIZE).astype(int), 0, SIZE - 1)
+        seen.append(int(eyeball[row, col].sum()))
+    assert seen[0] > 200 and seen[1] <= 0.02 * seen[0], seen
+    with pytest.raises(ValueError, match="facial actions"):
+        make_body(seed=0, texture_size=SIZE, cache_dir=cache, expression={"smile": 1.0})
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        make_body(seed=0, texture_size=SIZE, cache_dir=cache, expression={"eyeBlinkLeft": 2.0})
+
+
+def test_expressions_are_drawn_at_their_shares():
+    from glsynth.assets.bodies import EYES_CLOSED_SHARE, EYES_HALF_SHARE, sample_expression
+    rng = np.random.default_rng(5)
+    blinks = np.array([sample_expression(rng)["eyeBlinkLeft"] for _ in range(4000)])
+    assert abs((blinks == 1.0).mean() - EYES_CLOSED_SHARE) < 0.025
+    assert abs(((blinks > 0.4) & (blinks < 1)).mean() - EYES_HALF_SHARE) < 0.02
+    assert ((blinks <= 0.2) | (blinks > 0.4)).all()
+
+
 def test_nevi_are_small_dark_skin_spots(cache):
     body = make_body(seed=7, texture_size=1024, cache_dir=cache, clothing="none")
     m = body.mesh

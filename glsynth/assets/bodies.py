@@ -57,6 +57,13 @@ POSES = {
                     "foot.R": (-10, 0, 0)},
 }
 
+# Facial actions (anny's ARKit-style blend shapes, 0..1) that bodies may show. Faces in
+# clinical photographs often have their eyes closed (periorbital and eyelid lesions are
+# photographed so, and patients shut them against the flash); a closed eye, its lid
+# folded over the lash line, is skin.
+FACIAL_ACTIONS = ("eyeBlinkLeft", "eyeBlinkRight")
+EYES_CLOSED_SHARE, EYES_HALF_SHARE = 0.25, 0.1
+
 # anny (x left, y back, z up) -> body frame (x left, y up, z front)
 _TO_BODY = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])
 
@@ -80,7 +87,7 @@ class Body:
 
 
 def make_body(seed=0, fitzpatrick=None, ita=None, phenotype=None, pose=None, clothing=None,
-              texture_size=2048, cache_dir=None, beard=None) -> Body:
+              texture_size=2048, cache_dir=None, beard=None, expression=None) -> Body:
     """A seeded anny body. Anything not given is sampled from ``seed``: phenotype
     (sex, adult age, muscle, weight, height, proportions), skin tone (Fitzpatrick type
     uniformly, then an ITA inside its band), pose (one of ``POSES``) and clothing.
@@ -89,10 +96,13 @@ def make_body(seed=0, fitzpatrick=None, ita=None, phenotype=None, pose=None, clo
     phenotype: dict overriding anny parameters (``PHENOTYPE_KEYS``, values 0..1);
     pose: a name in ``POSES``; clothing: see :func:`skin.normalise_clothing`;
     texture_size: texture side in texels (>= 64; 2048 for full detail); beard: a name in
-    ``skin.BEARDS`` (default: drawn for adult men).
+    ``skin.BEARDS`` (default: drawn for adult men); expression: dict of ``FACIAL_ACTIONS``
+    coefficients 0..1 (default: drawn by ``sample_expression``; the texture is painted on
+    the neutral face).
     """
     args = {"seed": int(seed), "fitzpatrick": fitzpatrick, "ita": ita, "phenotype": phenotype,
-            "pose": pose, "clothing": clothing, "texture_size": int(texture_size), "beard": beard}
+            "pose": pose, "clothing": clothing, "texture_size": int(texture_size), "beard": beard,
+            "expression": expression}
     _check_args(args)
     key = _cache_key(args)
     path = _cache_path(args, key, cache_dir)
@@ -106,6 +116,19 @@ def make_body(seed=0, fitzpatrick=None, ita=None, phenotype=None, pose=None, clo
     log.info("built body seed=%d in %.1f s", args["seed"], time.perf_counter() - t0)
     _save(path, {**arrays, "cache_key": np.array(key)})
     return _from_arrays(arrays)
+
+
+def sample_expression(rng: np.random.Generator) -> dict:
+    """Eyes closed (``EYES_CLOSED_SHARE``), half closed (``EYES_HALF_SHARE``) or open
+    with the lids at rest a little lowered or not."""
+    u = rng.random()
+    if u < EYES_CLOSED_SHARE:
+        blink = 1.0
+    elif u < EYES_CLOSED_SHARE + EYES_HALF_SHARE:
+        blink = rng.uniform(0.45, 0.75)
+    else:
+        blink = rng.uniform(0.0, 0.2)
+    return {"eyeBlinkLeft": float(blink), "eyeBlinkRight": float(blink)}
 
 
 def sample_phenotype(rng: np.random.Generator) -> dict:
@@ -128,6 +151,12 @@ def _check_args(args):
                          f"{args['fitzpatrick']}")
     if args["pose"] is not None and args["pose"] not in POSES:
         raise ValueError(f"unknown pose {args['pose']!r}; choose from {sorted(POSES)}")
+    unknown = set(args["expression"] or {}) - set(FACIAL_ACTIONS)
+    if unknown:
+        raise ValueError(f"unknown facial actions {sorted(unknown)}; use {FACIAL_ACTIONS}")
+    bad = {k: v for k, v in (args["expression"] or {}).items() if not 0 <= float(v) <= 1}
+    if bad:
+        raise ValueError(f"facial action coefficients must be in [0, 1], got {bad}")
     unknown = set(args["phenotype"] or {}) - set(PHENOTYPE_KEYS)
     if unknown:
         raise ValueError(f"unknown phenotype keys {sorted(unknown)}; use {PHENOTYPE_KEYS}")
@@ -135,8 +164,9 @@ def _check_args(args):
         raise ValueError(f"texture_size must be >= 64, got {args['texture_size']}")
 
 
-def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size, beard) -> dict:
-    rngs = [np.random.default_rng([seed, k]) for k in range(4)]
+def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size, beard,
+           expression) -> dict:
+    rngs = [np.random.default_rng([seed, k]) for k in range(5)]
     pheno = sample_phenotype(rngs[0])
     pheno.update({k: float(v) for k, v in (phenotype or {}).items()})
     if ita is None:
@@ -147,13 +177,16 @@ def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size, bear
     pose = pose if pose is not None else list(POSES)[int(rngs[2].integers(len(POSES)))]
     female = pheno["gender"] > 0.5
     look = skin.sample_look(rngs[3], ita, female, pheno["age"], clothing, beard)
+    face = sample_expression(rngs[4])
+    face.update({k: float(v) for k, v in (expression or {}).items()})
 
     st = _static()
     model = _model()
     import torch
     with torch.no_grad():
         rest = model(phenotype_kwargs=pheno)
-        posed = model(pose_parameters=_pose_parameters(model, pose), phenotype_kwargs=pheno)
+        posed = model(pose_parameters=_pose_parameters(model, pose), phenotype_kwargs=pheno,
+                      facial_actions=face)
     rest_v = rest["rest_vertices"][0].double().numpy() @ _TO_BODY.T
     joints = dict(zip(model.bone_labels, rest["rest_bone_heads"][0].double().numpy() @ _TO_BODY.T))
     v = posed["vertices"][0].double().numpy() @ _TO_BODY.T
@@ -165,7 +198,7 @@ def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size, bear
                             raster=_raster(texture_size),
                             hair_quality=hairflow.hair_flow_quality(v, st["faces"], hair_coords))
     meta = {"seed": seed, "phenotype": pheno, "sex": "female" if female else "male",
-            "pose": pose, "ita": ita, "fitzpatrick": fitz, "clothing": look.clothing,
+            "pose": pose, "expression": face, "ita": ita, "fitzpatrick": fitz, "clothing": look.clothing,
             "look": look.to_dict(), "height_m": float(np.ptp(rest_v[:, 1])),
             "texture_size": texture_size,
             "frame": "metres, +Y up, feet on y=0, pelvis at x=z=0, facing +Z, body's left +X",
@@ -216,7 +249,8 @@ def _pose_parameters(model, name):
 def _model():
     import anny
     t0 = time.perf_counter()
-    model = anny.Anny(skinning_method="lbs")  # dense torch skinning: no warp kernel build
+    # dense torch skinning: no warp kernel build
+    model = anny.Anny(skinning_method="lbs", facial_actions=list(FACIAL_ACTIONS))
     log.info("anny model ready in %.1f s", time.perf_counter() - t0)
     return model
 
