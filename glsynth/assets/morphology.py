@@ -1214,7 +1214,7 @@ def _keloid(b, rng, R):
     # ridge that ran out to two points, a glossy lozenge
     u = c.x * np.cos(axis) + c.y * np.sin(axis)
     v = c.y * np.cos(axis) - c.x * np.sin(axis)
-    half = R * 0.8 * aspect                            # half its width
+    half = band = R * 0.8 * aspect                     # half its width
     straight = R * 0.8 - half                          # half its straight middle's length
     sd = half * (1 + 0.1 * c.noise(max(R / 3, 2 * c.px), 2)) \
         - np.hypot(np.maximum(np.abs(u) - straight, 0.0), v)
@@ -1233,10 +1233,12 @@ def _keloid(b, rng, R):
     w = b.weight(sd, R * 0.05)
     # a plateau: steep rounded shoulders and a flat top with low, broad swellings (a dome
     # over the whole band rose to a tube with a fold along its middle), each claw lower
-    # as it narrows
+    # as it narrows. It stands at most 0.6 of its half-width high: a 4 mm band raised
+    # 1-4 mm, as all were, was a pill or a chocolate bar standing on the skin
     top = max(float(sd.max()), 1e-6)
     lumps = 1 + 0.05 * c.noise(max(R / 1.5, 2 * c.px), 2)
-    b.f["height"] += rng.uniform(1.0, 4.0) * lumps * smoothstep(0.0, 0.9, dome(sd > 0)) \
+    rise = min(rng.uniform(1.0, 4.0), 0.6 * band)
+    b.f["height"] += rise * lumps * smoothstep(0.0, 0.9, dome(sd > 0)) \
         * smoothstep(-0.08 * top, 0.1 * top, sd)
     b.f["gloss"] = np.maximum(b.f["gloss"], rng.uniform(0.12, 0.25) * w)
     b.f["detail"] *= 1 - 0.85 * w
@@ -1255,7 +1257,8 @@ def _keloid(b, rng, R):
     vessels = vessel_tree(c, starts, around + np.pi, rng.uniform(0.06, 0.12), R * 0.5, depth=2) * w
     b.erythema(vessels * smoothstep(0.0, R * 0.1, sd), 3.0, 0.85)
     b.outline(w, 0.4)
-    return {"stage": "active" if active else "mature", "claws": claws, "aspect": round(aspect, 3)}
+    return {"stage": "active" if active else "mature", "claws": claws, "aspect": round(aspect, 3),
+            "height_mm": round(rise, 2)}
 
 
 def _herpes(b, rng, R):
