@@ -987,7 +987,7 @@ def test_warts_are_rough_keratotic_papules_flecked_with_black_dots(rng):
     """A wart is raised, under keratin over most of it, interrupts the skin's lines, and
     carries black dots (clotted capillaries) inside its outline and nowhere outside."""
     from glsynth.assets.morphology import make_condition
-    for seed in rng.integers(2 ** 31, size=3):
+    for seed in rng.integers(2 ** 31, size=6):
         f = make_condition("wart", [int(seed)], size=256)
         m = f.mask
         assert np.median(f.f["height"][m]) > 0.1 and (f.f["scale"][m] > 0.05).mean() > 0.8

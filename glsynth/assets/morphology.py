@@ -1182,8 +1182,8 @@ def _wart(b, rng, R):
     fronds = smoothstep(0.0, 0.5, wall) * (0.7 + 0.3 * tip)   # a cone per cell
     keratin = (188, 174, 150)
     # thrombosed capillaries: black dots a quarter to half a millimetre, in the valleys
-    speckle = smoothstep(1.6, 2.2, c.noise(max(0.25, frond * 0.6), 1))
-    dots = np.zeros((c.size, c.size), np.float32)
+    speckle = c.noise(max(0.25, frond * 0.6), 1)
+    cover = np.zeros((c.size, c.size), np.float32)
     for p, r in zip(centres, radii):
         sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.75, 1.0), irregular=0.2, warp=0.1)
         w = b.weight(sd, r * 0.1)
@@ -1193,8 +1193,13 @@ def _wart(b, rng, R):
         b.f["scale"] = np.maximum(b.f["scale"], w * (0.12 + 0.3 * fronds) * rng.uniform(0.6, 1.0))
         b.f["detail"] *= 1 - 0.8 * w
         b.f["melanin"] *= 1 + 0.3 * w * (1 - fronds)        # darker between the fronds
-        dots = np.maximum(dots, speckle * w * dome)
+        cover = np.maximum(cover, w * dome)
         b.outline(w, 0.4, instance=1 if kind == "mosaic" else None)
+    # the noise's peaks, but at least the top 3% of the warts' tops: a few small warts
+    # had none above a fixed level and showed no dots at all
+    top = cover > 0.5
+    lo = min(1.6, float(np.quantile(speckle[top], 0.97))) if top.any() else 1.6
+    dots = smoothstep(lo, lo + 0.6, speckle) * cover
     # one crust pass for all the warts' dots (each pass makes three full-grid noises)
     b.crust(dots, 1.0, "haemorrhagic", lump_mm=frond, thickness_mm=0.02)
     b.f["crust_dark"] = np.maximum(b.f["crust_dark"], dots)
