@@ -334,7 +334,7 @@ def test_closed_eyes_hide_the_eyeballs_and_move_only_the_lids(default_body, cach
     assert (body.anatomy[moved] == 1).all()                         # the head
     assert np.ptp(v0[moved], axis=0).max() < 0.12      # two eyes' width, not the face
     eyeball = _segment_mask(SIZE, ["eye_front.L", "eye_front.R"])
-    top, front = v0[:, 1].max(), v0[v0[:, 1] > v0[:, 1].max() - 0.25, 2].max()
+    front = v0[v0[:, 1] > v0[:, 1].max() - 0.25, 2].max()           # of the head
     target = np.array([0.0, v0[moved, 1].mean(), front - 0.03])
     cam = Camera.look_at(eye=target + [0, 0, 0.4], target=target, fov_deg=20, width=256, height=256)
     seen = []
