@@ -231,8 +231,9 @@ def test_tiles_wrap_seamlessly():
         assert abs(r[..., 2].mean()) < 1e-3                    # albedo change averages to 0
     blood = t.meso[..., 3].astype(np.float64)
     assert abs(blood.mean()) < 1e-3                            # and so does the blood mottle,
-    # which only adds redness: the half of the noise below its mean is cut to one floor
-    assert np.mean(blood == blood.min()) > 0.4 and np.ptp(blood) > 0.1
+    # which only adds redness: the half of the noise below its mean is cut to one floor,
+    # and the spots above it reach twice the noise's scaled spread (0.02)
+    assert np.mean(blood == blood.min()) > 0.4 and np.ptp(blood) > 0.04
 
 
 def _surface_per_hair_coordinate(v, f, hc):

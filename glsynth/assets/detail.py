@@ -31,10 +31,11 @@ views see their average and close-ups their structure:
   relief tile and the body texture's texels: the soft undulation of the skin over fat,
   muscle, tendons and veins (features ~6-30 mm, a few degrees of slope) and mottling of
   pigment and of the superficial vascular plexus at 1-6 mm. Without it a close-up of a
-  hand's width of skin is evenly lit and evenly coloured between the furrows: in the
-  dev photographs, healthy skin's luminance varies 2-3x as much at 1-5 mm as in our
-  close-ups. Half floats: R, G the height slope, B the melanin mottle and A the blood
-  mottle (relative absorbance changes, mean 0), projected like the relief tile.
+  hand's width of skin is evenly lit and evenly coloured between the furrows. The
+  mottling is faint (RMS 3% melanin and 2% blood absorbance): at 8% and 5%, until
+  2026-12-01, it speckled regional views of healthy skin like a rash. Half floats: R, G
+  the height slope, B the melanin mottle and A the blood mottle (relative absorbance
+  changes, mean 0), projected like the relief tile.
 
 All four are made from a seed with numpy/OpenCV in a few seconds and kept per process.
 Heights and sizes are in micrometres, from the dermatology literature's orders of
@@ -211,7 +212,7 @@ def _crease_tile(seed=0, size=CREASE_SIZE, period=CREASE_PERIOD):
     return np.stack([gx, gy, shade, np.zeros_like(shade)], -1).astype(np.float16)
 
 
-def _meso_tile(seed=0, size=MESO_SIZE, period=MESO_PERIOD, slope=0.04, pigment=0.08, blood=0.05):
+def _meso_tile(seed=0, size=MESO_SIZE, period=MESO_PERIOD, slope=0.04, pigment=0.032, blood=0.02):
     """Soft undulation (RMS slope ``slope``) and mottling of melanin and blood (RMS
     relative absorbance ``pigment``, ``blood``), each the sum of a coarse and a fine
     octave so that no single size shows."""

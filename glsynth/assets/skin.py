@@ -204,6 +204,20 @@ class Noise3D:
         return out / norm
 
 
+# Healthy skin's mottling (amplitudes of unit-scale noise): centimetre blotches of
+# melanin and redness (CM_MOTTLE, a* and L* units), and per-texel millimetre mottling of
+# melanin (MM_MELANIN, L*) and of the superficial vascular plexus (MM_BLOOD, a*). They
+# were 3, 7 and 5 until 2026-12-01, fitted to the colour spread of the skin around the
+# dev photographs' lesions. That spread is mostly not pigment: light falling across a
+# curved limb, JPEG's chroma blocks, and skin near a lesion that is itself sun-damaged
+# or inflamed. As pigment it painted every body with a reticulated rash of yellow-brown
+# and pink blotches, like tinea versicolor on fair skin and dirt on dark skin, in
+# regional views, where the photographs' healthy skin is even.
+CM_MOTTLE = 1.8
+MM_MELANIN = 2.5
+MM_BLOOD = 1.75
+
+
 def _ageing(age: float, start: float = 0.75) -> float:
     """How far past ``start`` anny's age parameter (1/3 child, 2/3 young adult, 1 old)
     lies, 0 at ``start`` to 1 at the oldest."""
@@ -604,20 +618,17 @@ class _Painter:
             """More (dL < 0) or less melanin per texel, as the change of L* it makes."""
             Lab[:] += np.asarray(dL)[:, None] * slope
 
-        add_melanin(tone * (4.0 * low + 3.0 * mid))
-        a += 3.0 * hue + vis * (3.0 * (uneven - 1.0) * np.clip(hue, 0, None) + 3.0 * uneven * np.clip(blotch, 0, None))
-        b -= 1.2 * hue
+        add_melanin(tone * (4.0 * low + CM_MOTTLE * mid))
+        a += CM_MOTTLE * (hue + vis * ((uneven - 1.0) * np.clip(hue, 0, None) + uneven * np.clip(blotch, 0, None)))
+        b -= 0.4 * CM_MOTTLE * hue
         # mottling at the scale of millimetres (per texel): uneven melanin and the
-        # superficial vascular plexus showing through, what makes real skin up close
-        # anything but an even colour. Against the dev photographs (skin 40-80 px from a
-        # lesion at 512 px, smoothed over 8 px: median |da| 1.9, |db| 1.8) amplitudes
-        # (4, 4, 2) gave 0.8 and 0.6, (7, 7, 3.5) 1.1 and 0.7; the redness is back to 5,
-        # as with the centimetre blotches at 7 it read as a rash in regional views
+        # superficial vascular plexus showing through, so that skin up close is not one
+        # even colour (the shader's mesoscale tile adds the same at 1-6 mm)
         melanin = nz.fbm(p + 41.0, 110.0, 3)
         blood = nz.fbm(p - 57.0, 140.0, 3)
-        add_melanin(tone * 7.0 * melanin)
-        L -= 1.8 * vis * np.clip(blood, 0, None)
-        a += 5.0 * vis * blood + 5.0 * (np.sqrt(uneven) - 1.0) * vis * np.clip(blood, 0, None)
+        add_melanin(tone * MM_MELANIN * melanin)
+        L -= 0.36 * MM_BLOOD * vis * np.clip(blood, 0, None)
+        a += MM_BLOOD * vis * (blood + (np.sqrt(uneven) - 1.0) * np.clip(blood, 0, None))
         # pores / fine grain per texel, scaled to the texel footprint
         fine = nz(p, 0.45 / self.texel_m)
         pores = _smoothstep(0.45, 0.9, nz(p + 3.0, 0.3 / self.texel_m))
