@@ -1104,6 +1104,21 @@ def test_granuloma_annulare_is_a_raised_ring_without_scale_outlined_with_its_cen
         assert np.hypot(gx, gy).max() < 1.2
 
 
+def test_granuloma_annulare_papules_merge_into_a_beaded_band(rng):
+    """The ring's papules coalesce into one raised band that they bead, not a string of
+    separate domes: over the raised ring, the relief's departure from itself blurred by
+    0.3 of the ring's width is 0.12-0.26 of its mean (separate domes until 2026-12-01
+    gave 0.30-0.34)."""
+    from glsynth.assets.morphology import make_condition
+    for seed in rng.integers(2 ** 31, size=4):
+        f = make_condition("granuloma_annulare", [int(seed)], size=256)
+        h = f.f["height"].astype(np.float32)
+        ring = h > 0.25 * h.max()
+        smooth = cv2.GaussianBlur(h, (0, 0), 0.3 * f.params["ring_mm"] / f.mm_per_px)
+        beading = np.abs(h - smooth)[ring].mean() / h[ring].mean()
+        assert 0.12 < beading < 0.26, (int(seed), beading)
+
+
 def test_dome_is_round_topped_without_a_crease_along_its_middle(rng):
     """A dome over a long oval: highest on the middle, sloping to zero just past the edge,
     and smooth across its crest (the raw distance to the edge kinks there, which shading

@@ -1372,7 +1372,13 @@ def _granuloma_annulare(b, rng, R):
     sd, which = spots(c, centres, radii, irregular=0.1)
     s = np.clip(sd / radii[np.maximum(which, 0)], 0.0, 1.0)
     papule = cv2.GaussianBlur(1 - (1 - s) ** 2, (0, 0), max(0.5, 0.1 * width / c.px))
-    b.f["height"] += min(rng.uniform(0.3, 0.6), 0.3 * width) * papule   # low: at most r x 0.6
+    # the papules merge into one raised, rounded band (the ring's blurred papules) whose
+    # top the papules bead; until 2026-12-01 each stood as its own dome between deep
+    # notches, a string of pearls laid on the skin
+    band = cv2.GaussianBlur(papule, (0, 0), max(1.0, 0.3 * width / c.px))
+    band /= max(float(band.max()), 1e-6)
+    relief = 0.6 * band + 0.4 * papule
+    b.f["height"] += min(rng.uniform(0.3, 0.6), 0.3 * width) * relief   # low: at most r x 0.6
     w_ring = b.weight(sd, width * 0.3, "ill-defined")
     b.erythema(w_ring * (0.7 + 0.3 * papule), rng.uniform(1.0, 2.5), oxygen=rng.uniform(0.55, 0.75))
     b.f["melanin"] *= 1 + rng.uniform(0.1, 0.5) * w_ring
