@@ -1056,15 +1056,18 @@ def test_keloids_end_round_not_in_points(rng):
 
 def test_keloids_are_plateaus_not_tubes(rng):
     """A keloid's top is flat, its shoulders steep: share of the lesion within 20% of its
-    highest point, 0.41-0.53 (median 0.47) over 12 draws; a dome over the band, which
-    rose to a tube with a fold along its middle, gave 0.33-0.43 (median 0.37)."""
+    highest point, median 0.47 over 240 draws (5-95%: 0.40-0.54); a dome over the band,
+    which rose to a tube with a fold along its middle, gave median 0.38 (0.29-0.47 over
+    120). The median of 24 draws falls to 0.42 in fewer than one run in 3,000 (6 draws against 0.43
+    failed one run in 50, as in CI on 2026-12-01, seed 3893121992); the tube's never
+    reaches it."""
     from glsynth.assets.morphology import make_condition
     shares = []
-    for seed in rng.integers(2 ** 31, size=6):
+    for seed in rng.integers(2 ** 31, size=24):
         f = make_condition("keloid", [int(seed)], size=128)
         h, m = f.f["height"], f.mask > 0
         shares.append((h[m] >= 0.8 * h[m].max()).mean())
-    assert np.median(shares) > 0.43, np.round(shares, 3)
+    assert np.median(shares) > 0.42, np.round(shares, 3)
 
 
 def test_herpes_vesicles_are_glistening_pale_domes_on_a_red_base_one_instance_per_cluster(rng):
