@@ -414,16 +414,6 @@ def _log_uniform(rng, lo, hi):
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def _one_region(w, threshold=0.35):
-    """The largest region of ``w`` > threshold with its holes filled: the outline of one
-    lesion, taking in its paler areas, not the specks its border noise leaves outside."""
-    lab, count = ndimage.label(w > threshold)
-    if not count:
-        return np.zeros(w.shape, bool)
-    sizes = ndimage.sum_labels(np.ones(w.shape, np.float32), lab, range(1, count + 1))
-    return ndimage.binary_fill_holes(lab == 1 + int(np.argmax(sizes)))
-
-
 def _nevus(b, rng, R):
     sd = b.c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.05, warp=0.03)
     w = b.weight(sd, R * 0.15)
@@ -471,7 +461,11 @@ def _melanoma(b, rng, R):
     b.mix("melanin_add", regress, 0.0)
     b.mix("melanin", regress, 0.6)
     b.f["height"] += rng.uniform(0.0, 0.8) * smoothstep(0, R, sd)
-    b.outline(_one_region(w).astype(np.float32), 0.5)      # its regressed areas included
+    # one lesion: the outline takes in its regressed (pale) areas, not specks at its edge
+    lab, count = ndimage.label(w > 0.35)
+    if count:
+        main = lab == 1 + int(np.argmax(ndimage.sum_labels(np.ones_like(w), lab, range(1, count + 1))))
+        b.outline(ndimage.binary_fill_holes(main).astype(np.float32), 0.5)
     return {"irregularity": "high", "lobes": lobes, "border_fades": bool(fade.max() > 0)}
 
 
@@ -1091,20 +1085,14 @@ def _porokeratosis(b, rng, R):
 def _pigmented_patch(b, rng, R):
     """A flat brown patch (cafe-au-lait macule, Becker naevus, post-inflammatory
     hyperpigmentation): evenly light to mid brown with faint mottling, sharply bordered,
-    its outline smooth (the 'coast of California') or jagged (the 'coast of Maine':
-    serrated at a fine scale over a gently lobed outline), the skin's markings and texture
-    unchanged; one region. Large and flat, the kind of lesion a model that only knows
-    small dark ones takes for skin. (Until 2026-12-01 the jagged outline was a blob with
-    fingers, and in half of its draws left specks or holes.)"""
+    its outline smooth (the 'coast of California') or jagged (the 'coast of Maine'), the
+    skin's markings and texture unchanged. Large and flat, the kind of lesion a model
+    that only knows small dark ones takes for skin."""
     c = b.c
     jagged = rng.random() < 0.4
-    sd = c.shape("round", R, aspect=rng.uniform(0.5, 0.95), irregular=0.14 if jagged else 0.08,
-                 warp=0.08 if jagged else 0.06)
-    if jagged:
-        sd = sd + R * 0.05 * c.noise(R / 12, 2)
+    sd = c.shape("round", R, aspect=rng.uniform(0.5, 0.95), irregular=0.35 if jagged else 0.08,
+                 warp=0.2 if jagged else 0.06)
     w = b.weight(sd, R * 0.06)
-    region = _one_region(w)
-    w = np.minimum(w, cv2.GaussianBlur(region.astype(np.float32), (0, 0), 1.0))   # no stray specks
     # light brown as a rule: melanin added (what shows on fair skin) and multiplied (an
     # added amount hardly shows on dark skin), L* 5-20 below the skin round it on types
     # II and V (median ~10 and ~13). Real cafe-au-lait macules and the dev set's flat brown
@@ -1112,7 +1100,7 @@ def _pigmented_patch(b, rng, R):
     add = _log_uniform(rng, 0.008, 0.05)
     b.f["melanin_add"] += w * add * (1 + 0.12 * c.noise(max(0.8, R / 6), 2))
     b.f["melanin"] *= 1 + w * rng.uniform(0.15, 0.8)
-    b.outline(region.astype(np.float32), 0.5)
+    b.outline(w, 0.35)
     return {"border": "jagged" if jagged else "smooth", "melanin_add": round(add, 4)}
 
 
