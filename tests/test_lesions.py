@@ -1041,9 +1041,9 @@ def test_keloids_are_plateaus_not_tubes(rng):
     """A keloid's top is flat, its shoulders steep: share of the lesion within 20% of its
     highest point, median 0.47 over 240 draws (5-95%: 0.40-0.54); a dome over the band,
     which rose to a tube with a fold along its middle, gave median 0.38 (0.29-0.47 over
-    120). The median of 24 draws falls to 0.42 in fewer than one run in 3,000 (6 draws against 0.43
-    failed one run in 50, as in CI on 2026-12-01, seed 3893121992); the tube's never
-    reaches it."""
+    120). The median of 24 draws falls to 0.42 in fewer than one run in 3,000 (6 draws
+    against 0.43 failed one run in 50, as in CI on 2026-12-01, seed 3893121992); the
+    tube's never reaches it."""
     from glsynth.assets.morphology import make_condition
     shares = []
     for seed in rng.integers(2 ** 31, size=24):
