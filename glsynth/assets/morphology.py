@@ -426,28 +426,47 @@ def _nevus(b, rng, R):
 
 
 def _melanoma(b, rng, R):
-    """Superficial spreading or nodular melanoma: asymmetric, tan to black, variegated at
-    the scale of a millimetre, with a coarse atypical network, dots, a blue-grey veil,
-    erythema and regression; often raised. (The flat, ill-defined lentigo maligna on
-    sun-damaged skin is its own preset.)"""
+    """Superficial spreading or nodular melanoma: asymmetric, tan to black, variegated in
+    zones (an eccentric darker area, paler ones, mottling of a few millimetres), with a
+    coarse atypical network, dots, a blue-grey veil, erythema and regression; often
+    raised. Its outline is a compact oval grown out unevenly into one or two eccentric
+    lobes, notched at a finer scale; the border is abrupt in places and fades out in
+    others. (Until 2026-12-01 it was one warped disc with strong radial harmonics, which
+    drew petals, fingers and holes: an ink blot, in leopard spots. The flat, ill-defined
+    lentigo maligna on sun-damaged skin is its own preset.)"""
     c = b.c
-    sd = c.shape("round", R, aspect=rng.uniform(0.6, 0.95), irregular=rng.uniform(0.15, 0.3), warp=0.15)
-    w = b.weight(sd, R * 0.3, "ill-defined" if rng.random() < 0.4 else "sharp")
-    d = c.noise(R / 2.5, 3) + 1.2 * (c.x * rng.normal() + c.y * rng.normal()) / R   # asymmetry
-    # variegation at the scale of a millimetre, a coarse atypical network and dots
-    fine = c.noise(max(0.6, R / 12), 2)
+    sd = c.shape("round", R * 0.8, aspect=rng.uniform(0.65, 0.95), irregular=rng.uniform(0.05, 0.12),
+                 warp=0.05)
+    lobes = int(rng.integers(1, 3))
+    for _ in range(lobes):
+        t = rng.uniform(0, 2 * np.pi)
+        off = R * rng.uniform(0.3, 0.5) * np.array([np.cos(t), np.sin(t)])
+        lobe = c.shape("round", R * rng.uniform(0.4, 0.65), centre=off, aspect=rng.uniform(0.6, 1.0),
+                       irregular=0.08, warp=0.05)
+        sd = np.maximum(sd, lobe)
+    n = c.noise(R / 6, 2)
+    sd = sd + R * (0.02 * n + 0.06 * np.minimum(n, 0))       # notches more than bumps: no islands
+    fade = smoothstep(-0.5, 1.2, c.noise(R / 1.5, 1)) * (rng.random() < 0.7)
+    border = R * (0.03 + 0.25 * fade)                         # abrupt here, fading out there
+    w = smoothstep(-border, 0.3 * border + c.px, sd)
+    d = c.noise(R / 1.2, 2) + 1.0 * (c.x * rng.normal() + c.y * rng.normal()) / R   # zones, asymmetric
+    fine = c.noise(max(0.6, R / 6), 2)
     net = 1 - smoothstep(0.0, 0.35, np.abs(c.noise(max(0.35, R / 25), 1)))
     dots = smoothstep(1.6, 2.3, c.noise(max(0.25, R / 40), 1)) * smoothstep(-0.5, 0.8, d)
-    b.f["melanin_add"] += w * (0.08 + 0.45 * smoothstep(-1.0, 1.5, d + 0.35 * fine)
-                               + 0.08 * net + 0.3 * dots)                            # tan/brown to black
-    b.f["dermal_melanin"] += w * 0.015 * smoothstep(0.6, 1.8, c.noise(R / 3, 2))       # blue-grey veil
-    b.erythema(w * smoothstep(0.5, 2.0, c.noise(R / 3, 2)), 1.5)
-    regress = w * 0.7 * smoothstep(1.2, 2.4, c.noise(R / 3, 2))                        # regression
+    b.f["melanin_add"] += w * (0.08 + 0.4 * smoothstep(-1.2, 1.8, d + 0.35 * fine)
+                               + 0.04 * net + 0.3 * dots)                            # tan/brown to black
+    b.f["dermal_melanin"] += w * 0.015 * smoothstep(0.6, 1.8, c.noise(R / 2.5, 2))     # blue-grey veil
+    b.erythema(w * smoothstep(0.5, 2.0, c.noise(R / 2.5, 2)), 1.5)
+    regress = w * 0.7 * smoothstep(1.2, 2.4, c.noise(R / 2.5, 2))                      # regression
     b.mix("melanin_add", regress, 0.0)
     b.mix("melanin", regress, 0.6)
     b.f["height"] += rng.uniform(0.0, 0.8) * smoothstep(0, R, sd)
-    b.outline(w, 0.35)
-    return {"irregularity": "high"}
+    # one lesion: the outline takes in its regressed (pale) areas, not specks at its edge
+    lab, count = ndimage.label(w > 0.35)
+    if count:
+        main = lab == 1 + int(np.argmax(ndimage.sum_labels(np.ones_like(w), lab, range(1, count + 1))))
+        b.outline(ndimage.binary_fill_holes(main).astype(np.float32), 0.5)
+    return {"irregularity": "high", "lobes": lobes, "border_fades": bool(fade.max() > 0)}
 
 
 def _lentigo_maligna(b, rng, R):
