@@ -34,9 +34,7 @@ class SkinSurface:
     hair. unit: scene units per metre. scalp_hair: H x W uint8 coverage of the hair
     painted as non-skin on the head (0..255, at the colour texture's resolution), shaded
     as a mass of fibres with strands at the pixel's scale, or None for none; hair_curl:
-    0 straight .. 1 coily, the course of those strands; crepe: 0..1, how far ageing has
-    turned the skin's relief into fine crinkles with shiny skin between them
-    (glsynth.assets.skin.crepe).
+    0 straight .. 1 coily, the course of those strands.
     """
     params: np.ndarray
     weight: np.ndarray | None = None
@@ -45,7 +43,6 @@ class SkinSurface:
     unit: float = 1.0
     scalp_hair: np.ndarray | None = None
     hair_curl: float = 0.2
-    crepe: float = 0.0
 
 
 class Mesh:

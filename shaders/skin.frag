@@ -108,7 +108,6 @@ vec4 tile_at(sampler2D tile, float weight, vec3 p, vec3 eu, vec3 ev, float perio
 
 #if HAIR
 uniform float u_hair_curl;         // 0 straight .. 1 coily (SkinSurface.hair_curl)
-uniform float u_crepe;             // 0..1, aged skin's crinkling (SkinSurface.crepe)
 
 float hash2(vec2 p) {
     vec3 q = fract(vec3(p.xyx) * 0.1031);
@@ -220,7 +219,7 @@ void main() {
     // footprint of this pixel on the surface (isotropic, as GL's own LOD)
     float footprint = dot(g_depth, b) * u_pixel_angle / max(abs(dot(ng, v)), 0.2);
     // (alpha below 0: scalp hair, its coverage)
-    float detail_weight = max(tex.a, 0.0), scalp = max(-tex.a, 0.0), gloss = 0.0, sheen = 0.0;
+    float detail_weight = max(tex.a, 0.0), scalp = max(-tex.a, 0.0), gloss = 0.0;
     vec3 grad = vec3(0.0);         // height gradient of relief and lesions, world units
     vec3 n_shape = ng;             // the surface's shape: its geometry and lesion relief
 #if DECALS
@@ -272,22 +271,14 @@ void main() {
     // at relief level 1 (0.5 in the map, most skin) the tile's own depths; lichenified
     // skin (detail weight above 1) deepens it
     float relief = level * u_relief_amount * max(detail_weight, 1.0);
-    // crepey skin (old, and where the relief level says sun or age has raised it): its
-    // polygonal network flattens (secondary furrows fade, plateaus merge) as crinkles
-    // take over, below
-    float crepe = u_crepe * smoothstep(1.0, 1.7, level) * min(detail_weight, 1.0);
-    float polygonal = relief * (1.0 - 0.45 * crepe);
-    // thin aged skin, smooth between its crinkles, has a sheen without sebum; not where it
-    // is dry, as on the shins and feet, which the oiliness map marks
-    sheen = 0.3 * crepe * smoothstep(0.06, 0.14, prm.a);
     // the height gradient of each projection in world axes, blended, then kept in the
     // tangent plane (the surface gradient)
-    grad += polygonal * (w.x * (p1.r * u1 + p1.g * v1) + w.y * (p2.r * u2 + p2.g * v2));
+    grad += relief * (w.x * (p1.r * u1 + p1.g * v1) + w.y * (p2.r * u2 + p2.g * v2));
     // albedo: furrow darkening and melanin speckle (mean 0 over the tile), pores (their
     // mean darkening over the tile, u_pore_mean, given back so far views keep the colour)
     float tone = dot(w, vec2(p1.b, p2.b));
     float pore = dot(w, vec2(p1.a, p2.a));
-    albedo *= (1.0 + min(polygonal, 1.0) * tone) * (1.0 - 0.6 * prm.g * (pore - u_pore_mean));
+    albedo *= (1.0 + min(relief, 1.0) * tone) * (1.0 - 0.6 * prm.g * (pore - u_pore_mean));
     // the mesoscale tile along the same axes: the surface's soft undulation, and melanin
     // and blood mottling as absorbance (melanin absorbs more towards blue, blood in
     // green; blood shows less through more melanin, as in glsynth.assets.skin)
@@ -368,21 +359,12 @@ void main() {
     float fine_w = clamp((level - 1.05) / 0.95, 0.0, 1.0) * (1.0 - smoothstep(0.4, 1.2, px_mm));
     float coarse_w = clamp((level - 1.3) / 0.7, 0.0, 1.0)
                      * (1.0 - smoothstep(0.4 * u_coarse_crease_scale, 1.2 * u_coarse_crease_scale, px_mm));
-    // crinkles of crepey skin: the tile read at 0.6 times its size (lines ~0.8 mm apart,
-    // ~60 um deep), turned a little off the wrinkles so the two cross in long rhombs
-    float crinkle_w = 2.0 * crepe * (1.0 - smoothstep(0.25, 0.75, px_mm));
-    if (fine_w + coarse_w + crinkle_w > 0.0) {
+    if (fine_w + coarse_w > 0.0) {
         vec2 cc = hc.yx / u_crease_period;
         float clod = log2(max(footprint / u_crease_period * u_crease_size, 1e-6));
         vec3 c = vec3(0.0);
         if (fine_w > 0.0)
             c = fine_w * textureLod(u_crease, cc, clod).rgb;
-        if (crinkle_w > 0.0) {
-            const mat2 turn = mat2(0.966, 0.259, -0.259, 0.966);   // 15 degrees
-            vec3 k = textureLod(u_crease, turn * cc / 0.6 + vec2(0.71, 0.17), clod + log2(1.0 / 0.6)).rgb;
-            // (the lookup's slopes along its own turned axes, back to the tile's)
-            c += crinkle_w * vec3(transpose(turn) * k.rg / 0.6, 0.5 * k.b);
-        }
         if (coarse_w > 0.0)
             c += coarse_w * textureLod(u_crease, cc / u_coarse_crease_scale + vec2(0.29, 0.53),
                                        clod - log2(u_coarse_crease_scale)).rgb;
@@ -395,7 +377,7 @@ void main() {
 #endif
 #endif
     n = bumped(ng, grad);
-    float roughness = mix(mix(u_roughness, 0.75 * u_roughness, oil) * (1.0 - sheen), 0.2, gloss);
+    float roughness = mix(mix(u_roughness, 0.75 * u_roughness, oil), 0.2, gloss);
     float alpha = roughness * roughness;
     float a2 = alpha * alpha;
     float k = 0.5 * alpha;

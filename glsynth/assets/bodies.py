@@ -373,8 +373,7 @@ def _from_arrays(a: dict) -> Body:
     if "skin_params" in a:
         skin_surface = SkinSurface(a["skin_params"], a["skin_weight"], a["hair_coords"],
                                    body_hair_rgb(meta["look"]["hair_rgb"]),
-                                   scalp_hair=a.get("scalp_hair"), hair_curl=hair_curl(meta["look"]),
-                                   crepe=skin.crepe(meta["look"]["age"], meta["look"]["ita"]))
+                                   scalp_hair=a.get("scalp_hair"), hair_curl=hair_curl(meta["look"]))
     mesh = Mesh(a["vertices"], a["faces"], uvs=a["uvs"], face_uvs=a["face_uvs"],
                 texture=a["texture"], textures={"nonskin": a["nonskin"], "features": a["features"]},
                 vertex_labels=a["anatomy"], name=f"anny-body-{meta['seed']}", skin=skin_surface)

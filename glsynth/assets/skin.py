@@ -230,15 +230,6 @@ def _photoprotection(ita: float) -> float:
     return 0.3 + 0.7 * float(np.clip((ita + 30.0) / 75.0, 0.0, 1.0))
 
 
-def crepe(age: float, ita: float) -> float:
-    """How crepey a body's skin is, 0..1 (glsynth.mesh.SkinSurface.crepe): from middle age
-    the epidermis thins and the dermis loses its elastic fibres, so relaxed skin folds into
-    fine, shallow, near-parallel crinkles with smooth, shiny skin between them, and the
-    polygonal microrelief flattens. Sun speeds it up, so melanin slows it (to ~60% at type
-    VI); the shader lays it where the relief level is raised (old and sun-exposed skin)."""
-    return _ageing(age, start=0.7) * (0.4 + 0.6 * _photoprotection(ita))
-
-
 def _smoothstep(e0, e1, x):
     t = np.clip((np.asarray(x, np.float32) - e0) / (e1 - e0), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)

@@ -715,7 +715,6 @@ class Renderer:
             if mesh.skin is not None:
                 values["u_hair_rgb"] = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
                 values["u_hair_curl"] = float(mesh.skin.hair_curl)
-                values["u_crepe"] = float(mesh.skin.crepe)
         _set_uniforms(prog, values)
 
     def _shadow_map(self, gpu, mesh, camera, light, prog):
