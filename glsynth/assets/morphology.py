@@ -464,7 +464,7 @@ def _melanoma(b, rng, R):
     # one lesion: the outline takes in its regressed (pale) areas, not specks at its edge
     lab, count = ndimage.label(w > 0.35)
     if count:
-        main = lab == 1 + int(np.argmax(ndimage.sum_labels(np.ones_like(w), lab, range(1, count + 1))))
+        main = lab == 1 + int(np.argmax(np.bincount(lab.ravel())[1:]))
         b.outline(ndimage.binary_fill_holes(main).astype(np.float32), 0.5)
     return {"irregularity": "high", "lobes": lobes, "border_fades": bool(fade.max() > 0)}
 
