@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from glsynth.assets.occluders import Occluder, sample_occluder
+from glsynth.assets.occluders import Occluder, sample_hair, sample_occluder
 from glsynth.dataformat import SEMANTIC_BACKGROUND, SEMANTIC_LESION, SEMANTIC_SKIN
 from glsynth.pipeline.photo import linear_to_srgb8, srgb_to_linear
 from glsynth.pipeline.views import draw_occluder, instance_regions, occlude
@@ -165,3 +165,115 @@ def test_the_same_seed_draws_the_same_occluder():
     a, b = (sample_occluder(np.random.default_rng(5), (64, 80), 0.2, (0, 0, 1)) for _ in range(2))
     assert a.kind == b.kind and a.meta == b.meta
     assert all((x == y).all() for x, y in ((a.rgb, b.rgb), (a.alpha, b.alpha), (a.shadow, b.shadow)))
+
+
+# ---- a lock of scalp hair ---------------------------------------------------------------
+
+def _hair(seed, shape=(160, 200), mm_per_px=0.1, up=(0.0, -1.0), coily=False, long_hair=True,
+          light=(0.3, 0.5, 0.81)):
+    return sample_hair(np.random.default_rng(seed), shape, mm_per_px, np.asarray(light) / np.linalg.norm(light),
+                       np.asarray(up, float), (60, 42, 30), coily=coily, long_hair=long_hair)
+
+
+def test_a_lock_of_hair_is_labelled_by_its_outline_and_its_strays_stay_skin(rng):
+    strays = 0
+    for seed in rng.integers(1 << 30, size=6):
+        occ = _hair(seed)
+        assert occ.kind == "hair" and occ.outline is not None
+        y0, y1, x0, x1 = occ.box
+        assert (occ.mask[y0:y1, x0:x1] == occ.outline).all() and not occ.mask[:y0].any()
+        covered = occ.alpha >= 0.5
+        # what the label calls hair is hair: most of the outline is covered (strands alone
+        # in its first 1-2 mm), and its inner part (2 mm and more inside) all but opaque
+        inner = cv2.erode(occ.outline.astype(np.uint8), np.ones((41, 41), np.uint8)) > 0
+        assert covered[occ.outline].mean() > 0.75
+        if inner.any():
+            assert occ.alpha[inner].mean() > 0.95
+        # strands past the outline are drawn but not labelled; they are single strands
+        # (lines a pixel or two wide, which an opening removes), not a mass of hair
+        outside = (covered & ~occ.outline).astype(np.uint8)
+        massed = cv2.morphologyEx(outside, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+        assert massed.sum() < 0.05 * occ.outline.sum()
+        strays += int(((occ.alpha > 0.2) & ~occ.outline).sum())
+    assert strays > 0
+
+
+@pytest.mark.parametrize("up", [(0, -1), (1, 0), (0, 1), (-0.6, -0.8)])
+def test_a_lock_of_hair_comes_in_from_the_side_the_scalp_lies(rng, up):
+    shape = (160, 200)
+    occ = _hair(int(rng.integers(1 << 30)), shape, up=up)
+    ys, xs = np.nonzero(occ.mask)
+    offset = np.array([xs.mean() - shape[1] / 2, ys.mean() - shape[0] / 2])
+    # within the 50 degrees it may turn, plus the outline's waves
+    assert offset @ np.asarray(up, float) / np.linalg.norm(offset) > np.cos(np.radians(65))
+
+
+def _coherence(gray, mask):
+    """How much one direction dominates the gradients over ``mask`` (0 isotropic, 1 all
+    one way): the structure tensor's anisotropy."""
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+    jxx, jyy, jxy = (gx * gx)[mask].sum(), (gy * gy)[mask].sum(), (gx * gy)[mask].sum()
+    return np.sqrt((jxx - jyy) ** 2 + 4 * jxy ** 2) / (jxx + jyy + 1e-12)
+
+
+def test_coily_hair_curls_where_straight_hair_runs_one_way(rng):
+    # strands in every direction in a coil; along the lock in straight hair (its light
+    # and dark strands make gradients across it)
+    straight, coily = [], []
+    for seed in rng.integers(1 << 30, size=16):
+        for curly, out in ((False, straight), (True, coily)):
+            occ = _hair(seed, (200, 200), 0.08, coily=curly)
+            if curly is False and occ.meta["curl_mm"] > 0:     # a loosely curled straight draw
+                continue
+            gray = occ.rgb @ np.float32([0.3, 0.59, 0.11])
+            out.append(_coherence(gray, occ.outline & (occ.alpha > 0.9)))
+    assert len(straight) >= 4 and len(coily) == 16
+    # (measured over 12 such draws of 16: a ratio of medians of 0.30-0.55)
+    assert np.median(coily) < 0.7 * np.median(straight), (straight, coily)
+    assert all(o.meta["curl_mm"] > 0 for o in [_hair(s, coily=True) for s in (1, 2, 3)])
+
+
+@pytest.mark.parametrize("mm_per_px", [0.005, 0.1, 1.0, 20.0])
+def test_hair_stays_finite_at_any_scale_and_light(rng, mm_per_px):
+    for light, coily in (((0, 0, 1), False), ((1, 0, 0), True), ((0, -0.6, 0.8), False)):
+        occ = _hair(int(rng.integers(1 << 30)), (90, 120), mm_per_px, coily=coily, light=light)
+        for a in (occ.rgb, occ.alpha, occ.shadow):
+            assert np.isfinite(a).all()
+        assert occ.alpha.min() >= 0 and occ.alpha.max() <= 1 and occ.shadow.min() > 0 and occ.shadow.max() <= 1
+        assert 0 <= occ.rgb.min() and occ.rgb.max() <= 1 and occ.rgb.dtype == np.float32
+        assert occ.mask.any() and not occ.mask.all()
+
+
+def test_hair_over_a_view_only_of_a_head_with_hair(rng):
+    from glsynth.camera import Camera
+    from glsynth.dataformat import SEMANTIC_NONSKIN
+    from glsynth.lighting import Material, PointLight
+    from glsynth.pipeline.views import ViewScene, hair_occluder
+    cam = Camera.from_surface(np.zeros(3), np.array([0.0, 0.0, 1.0]), w=0.1)
+    scene = ViewScene(cam, PointLight(np.array([0.3, 0.5, 1.0])), Material(), "surface", framing="closeup")
+    layers = _layers(rng, (96, 128))
+    layers["anatomy"][:] = 1                       # all head, its top third painted hair
+    layers["semantic"][:30] = SEMANTIC_NONSKIN
+    body = lambda hair: types.SimpleNamespace(meta={"look": {"hair": hair, "hair_rgb": [40, 30, 20],  # noqa: E731
+                                                             "hair_texture": "straight"}})
+    occ = hair_occluder(scene, body("short"), layers, np.random.default_rng(1), 1.0)
+    assert occ is not None and occ.kind == "hair"
+    ys, _ = np.nonzero(occ.mask)
+    assert ys.mean() < 48                          # it comes from the painted hair, at the top
+    assert hair_occluder(scene, body("none"), layers, np.random.default_rng(1), 1.0) is None
+    assert hair_occluder(scene, body("short"), layers, np.random.default_rng(1), 0.0) is None
+    assert hair_occluder(scene, body("short"), {k: v for k, v in layers.items() if k != "anatomy"},
+                         np.random.default_rng(1), 1.0) is None
+    arm = dict(layers, anatomy=np.full_like(layers["anatomy"], 13))
+    assert hair_occluder(scene, body("long"), arm, np.random.default_rng(1), 1.0) is None
+    # short hair needs its painted hair in view; long hair falls past the head
+    bare = dict(layers, semantic=np.full_like(layers["semantic"], SEMANTIC_SKIN))
+    assert hair_occluder(scene, body("short"), bare, np.random.default_rng(1), 1.0) is None
+    assert hair_occluder(scene, body("long"), bare, np.random.default_rng(1), 1.0) is not None
+    # nor a lock that would hang in the air beside the head
+    off = dict(layers, semantic=layers["semantic"].copy())
+    off["semantic"][:45] = SEMANTIC_BACKGROUND
+    off["semantic"][30:45] = SEMANTIC_NONSKIN          # the painted hair just below the air
+    off["anatomy"] = np.where(off["semantic"] == SEMANTIC_BACKGROUND, 0, 1).astype(np.uint8)
+    assert hair_occluder(scene, body("short"), off, np.random.default_rng(1), 1.0) is None

@@ -96,7 +96,7 @@ def test_every_sample_is_consistent(dataset):
         assert (meta["fractions"]["skin"]) >= 0.1
         edges.append(meta["background"]["edge"])
         if edges[-1] is not None:   # its pixels are background in every label (checked above)
-            assert meta["camera"]["framing"] != "wild" and edges[-1]["kind"] in ("glove", "clothing", "drape")
+            assert meta["camera"]["framing"] != "wild" and edges[-1]["kind"] in ("glove", "clothing", "drape", "hair")
         for key in ("eye", "target", "up", "fov_deg", "w", "point", "normal", "intrinsics"):
             assert key in meta["camera"]
     assert seen_lesion, "no lesion visible in any view"

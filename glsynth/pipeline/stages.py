@@ -361,6 +361,11 @@ class Generate2DViews(_Stage):
             if edge_rng.random() < cfg.backgrounds.edges:
                 occluder = V.edge_occluder(scene, layers["semantic"].shape, edge_rng)
                 occluder = occluder if V.occlude(layers, occluder, v, focus) else None
+        if occluder is None and scene.framing != "wild" and cfg.backgrounds.hair > 0:
+            # a lock of the patient's hair over a view of the head: its own generator
+            occluder = V.hair_occluder(scene, body, layers, rng_for(cfg.seed, "hair", body_id, j),
+                                       cfg.backgrounds.hair)
+            occluder = occluder if occluder is not None and V.occlude(layers, occluder, v, focus) else None
         # camera model: its own generator, so switching it on changes no scene parameter
         photo_params = photo.sample_params(cfg.photo, rng_for(cfg.seed, "photo", body_id, j), focus,
                                            focal_px=float(cam.intrinsics()[1, 1]))

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ..assets.backgrounds import NEAR_BACKDROPS
-from ..assets.occluders import Occluder, sample_occluder
+from ..assets.occluders import Occluder, sample_hair, sample_occluder
 from ..camera import Camera
 from ..dataformat import SEMANTIC_BACKGROUND, SEMANTIC_LESION, SEMANTIC_NONSKIN, SEMANTIC_SKIN
 from ..errors import GlsynthError
@@ -439,15 +439,69 @@ def edge_occluder(scene: ViewScene, shape, rng) -> Occluder:
     """Gloved fingers, clothing or a drape at the frame's edge, drawn at the scale of
     the skin the camera focuses on (``focus_distance``) and lit from the view's lights
     (each weighted by its diffuse strength; a flash lights from the camera)."""
+    return sample_occluder(rng, shape, _mm_per_px(scene.camera), _light_in_view(scene))
+
+
+# head views that may show a lock of hair: the head's share of the body in view
+HAIR_HEAD_SHARE = 0.25
+HAIR_IN_VIEW = 0.02   # short hair: the painted scalp hair's least share of the frame
+HAIR_OFF_BODY = 0.3   # the most of a lock's outline that may lie over the background
+
+
+def hair_occluder(scene: ViewScene, body, layers: dict, rng, share: float) -> Occluder | None:
+    """With probability ``share``, a lock of the body's scalp hair over the frame's
+    edge in a view of its head (a quarter of the body in view or more; any head in view
+    for long hair, which falls over the neck and shoulders). It comes from where the
+    scalp's painted hair lies in the frame (short hair: only where some is in view),
+    else from the top of the head. None for a bald body, without an anatomy layer, or
+    when more than ``HAIR_OFF_BODY`` of the lock would lie over the background."""
+    look = (getattr(body, "meta", None) or {}).get("look") or {}
+    anatomy = layers.get("anatomy")
+    if look.get("hair", "none") == "none" or anatomy is None:
+        return None
+    long_hair = look["hair"] == "long"
+    on_body = int((anatomy > 0).sum())
+    head = anatomy == 1
+    if not on_body or head.sum() < (0.05 if long_hair else HAIR_HEAD_SHARE) * on_body:
+        return None
+    hair_px = head & (layers["semantic"] == SEMANTIC_NONSKIN)
+    if not long_hair and hair_px.mean() < HAIR_IN_VIEW:
+        return None
+    if rng.random() >= share:
+        return None
+    h, w = anatomy.shape
+    if hair_px.mean() >= HAIR_IN_VIEW:
+        ys, xs = np.nonzero(hair_px)
+        up, least = np.array([xs.mean() - w / 2, ys.mean() - h / 2]), 0.05 * max(h, w)
+    else:   # the top of the head: world up in the image (x right, y down)
+        d = scene.camera.view_matrix()[:3, :3] @ np.array([0.0, 1.0, 0.0])
+        up, least = np.array([d[0], -d[1]]), 0.2
+    if np.linalg.norm(up) < least:   # hair all round, or the head seen from above
+        a = rng.uniform(0, 2 * np.pi)
+        up = np.array([np.cos(a), np.sin(a)])
+    occ = sample_hair(rng, (h, w), _mm_per_px(scene.camera), _light_in_view(scene), up / np.linalg.norm(up),
+                      look["hair_rgb"], coily=look.get("hair_texture") == "coily", long_hair=long_hair)
+    # drawn in the image plane, a lock over the background would hang in the air
+    if occ is None or (layers["semantic"][occ.mask] == SEMANTIC_BACKGROUND).mean() > HAIR_OFF_BODY:
+        return None
+    return occ
+
+
+def _light_in_view(scene: ViewScene) -> np.ndarray:
+    """Unit direction towards the view's lights in the camera's frame (+x right, +y up,
+    +z towards the camera), each weighted by its diffuse strength."""
     cam = scene.camera
     rot = cam.view_matrix()[:3, :3]
     towards = np.zeros(3)
     for light in scene.lights:
         d = rot @ (np.asarray(light.position) - np.asarray(cam.target))
         towards += np.mean(light.diffuse) * d / max(np.linalg.norm(d), 1e-9)
-    towards = towards / np.linalg.norm(towards) if np.linalg.norm(towards) > 1e-9 else np.array([0, 0, 1.0])
-    mm_per_px = 1000 * focus_distance(cam) / float(cam.intrinsics()[1, 1])
-    return sample_occluder(rng, shape, mm_per_px, towards)
+    return towards / np.linalg.norm(towards) if np.linalg.norm(towards) > 1e-9 else np.array([0, 0, 1.0])
+
+
+def _mm_per_px(cam: Camera) -> float:
+    """Millimetres of skin per pixel at the camera's focus."""
+    return 1000 * focus_distance(cam) / float(cam.intrinsics()[1, 1])
 
 
 def focus_distance(cam: Camera) -> float:
