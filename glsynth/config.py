@@ -379,9 +379,10 @@ class BackgroundsConfig:
     edges: float = key(0.25, "share of close-up and regional views with gloved fingers, the patient's "
                        "clothing or a drape reaching in from the frame's edge (assets/occluders.py)",
                        within=between(0, 1))
-    hair: float = key(0.4, "share of close-up and regional views of the head (a quarter of the body in "
+    hair: float = key(0.0, "share of close-up and regional views of the head (a quarter of the body in "
                       "view, or any of it for long hair) with a lock of the patient's scalp hair over the "
-                      "frame's edge, where no other edge is drawn (assets/occluders.py)", within=between(0, 1))
+                      "frame's edge, where no other edge is drawn (assets/occluders.py; off by default: "
+                      "docs/realism.md)", within=between(0, 1))
 
 
 @dataclass

@@ -193,7 +193,7 @@ def test_a_lock_of_hair_is_labelled_by_its_outline_and_its_strays_stay_skin(rng)
         # (lines a pixel or two wide, which an opening removes), not a mass of hair
         outside = (covered & ~occ.outline).astype(np.uint8)
         massed = cv2.morphologyEx(outside, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-        assert massed.sum() < 0.05 * occ.outline.sum()
+        assert massed.sum() < 0.15 * occ.outline.sum()
         strays += int(((occ.alpha > 0.2) & ~occ.outline).sum())
     assert strays > 0
 
@@ -277,3 +277,23 @@ def test_hair_over_a_view_only_of_a_head_with_hair(rng):
     off["semantic"][30:45] = SEMANTIC_NONSKIN          # the painted hair just below the air
     off["anatomy"] = np.where(off["semantic"] == SEMANTIC_BACKGROUND, 0, 1).astype(np.uint8)
     assert hair_occluder(scene, body("short"), off, np.random.default_rng(1), 1.0) is None
+    # short hair only from a side its painted hair reaches
+    middle = dict(layers, semantic=np.full_like(layers["semantic"], SEMANTIC_SKIN))
+    middle["semantic"][30:60, 40:90] = SEMANTIC_NONSKIN
+    assert hair_occluder(scene, body("short"), middle, np.random.default_rng(1), 1.0) is None
+
+
+def test_short_hair_reaches_no_further_than_its_length(rng):
+    # a 10 cm frame, hair coming from its top: the reach alone would be 1-4 cm
+    shape, mm_per_px = (200, 200), 0.5
+    deepest = {False: [], True: []}
+    for seed in rng.integers(1 << 30, size=8):
+        for long_hair in (False, True):
+            occ = _hair(seed, shape, mm_per_px, up=(0, -1), long_hair=long_hair)
+            # how far into the frame the lock lies: its pixels' distance to the frame's edge
+            inner = np.pad(np.ones(shape, np.uint8), 1, constant_values=0)
+            to_edge = cv2.distanceTransform(inner, cv2.DIST_L2, 5)[1:-1, 1:-1]
+            deepest[long_hair].append(to_edge[occ.mask].max() * mm_per_px)
+    # short strands are 6-15 mm; the outline's waves add up to 30%, and a corner a little more
+    assert max(deepest[False]) <= 1.5 * 15
+    assert max(deepest[True]) > 1.5 * 15

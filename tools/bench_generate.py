@@ -108,7 +108,6 @@ FEATURES = (
     ("camera model", ["photo.enabled=false"]),
     ("clinical backdrops (-> rooms)", ["backgrounds.clinical=0"]),
     ("gloves, clothing and drapes at the frame's edge", ["backgrounds.edges=0"]),
-    ("locks of hair at the frame's edge", ["backgrounds.hair=0"]),
 )
 
 

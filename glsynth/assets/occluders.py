@@ -261,9 +261,13 @@ def _hair_lock(rng, shape, mm_per_px, light, up, reach, hair_rgb, coily, long_ha
     centre = np.array([w / 2, h / 2])
     hit = min((w / 2) / max(abs(towards[0]), 1e-6), (h / 2) / max(abs(towards[1]), 1e-6))
     origin, inward = centre + hit * towards, -towards
-    # the lock's outline: a wavy line (locks 1-3 cm wide)
+    curl_mm = rng.uniform(0.8, 2.0) if coily else (rng.uniform(2.5, 6.0) if rng.random() < 0.3 else 0.0)
+    curl_px = curl_mm / mm_per_px
+    length_px = (rng.uniform(15, 40) if long_hair else rng.uniform(6, 15)) / mm_per_px
+    # the lock's outline: a wavy line (locks 1-3 cm wide), short hair reaching no
+    # further than its length
     wave = fractal_noise(rng, (1, 4 * n_side), max(rng.uniform(8, 25) / mm_per_px, 6), octaves=3)[0]
-    deep = reach * min(h, w)
+    deep = reach * min(h, w) if long_hair else min(reach * min(h, w), length_px)
     stray_px = rng.uniform(1, 4) / mm_per_px           # how far strays reach past it
     depth, along = _coords((0, h, 0, w), origin, inward)
     near = depth < 1.35 * deep + stray_px + 2
@@ -277,9 +281,6 @@ def _hair_lock(rng, shape, mm_per_px, light, up, reach, hair_rgb, coily, long_ha
     inside = (edge - depth).astype(np.float32)                    # px inside the outline
     bh, bw = inside.shape
     s = HAIR_SUPERSAMPLE
-    curl_mm = rng.uniform(0.8, 2.0) if coily else (rng.uniform(2.5, 6.0) if rng.random() < 0.3 else 0.0)
-    curl_px = curl_mm / mm_per_px
-    length_px = (rng.uniform(15, 40) if long_hair else rng.uniform(6, 15)) / mm_per_px
     if curl_px:
         length_px = max(length_px / 2, 4 * curl_px)
     clump_px = (rng.uniform(1.0, 2.5) if curl_px else rng.uniform(1.5, 4.0)) / mm_per_px
@@ -369,7 +370,8 @@ def sample_hair(rng, shape, mm_per_px: float, light, up, hair_rgb, coily=False, 
                 reach=(0.1, 0.4)) -> Occluder | None:
     """A lock of the patient's scalp hair (sRGB ``hair_rgb``; ``coily``: tight curls,
     else straight, wavy or loosely curled; ``long_hair``: longer strands) reaching
-    ``reach`` (fractions of the short side) into a ``shape`` frame from the side that
+    ``reach`` (fractions of the short side; short hair no further than its strands'
+    length) into a ``shape`` frame from the side that
     ``up`` (image x right, y down) points to; ``light`` as in ``sample_occluder``. None
     when the outline misses the frame."""
     r = float(rng.uniform(*reach))

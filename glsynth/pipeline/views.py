@@ -451,9 +451,10 @@ HAIR_OFF_BODY = 0.3   # the most of a lock's outline that may lie over the backg
 def hair_occluder(scene: ViewScene, body, layers: dict, rng, share: float) -> Occluder | None:
     """With probability ``share``, a lock of the body's scalp hair over the frame's
     edge in a view of its head (a quarter of the body in view or more; any head in view
-    for long hair, which falls over the neck and shoulders). It comes from where the
-    scalp's painted hair lies in the frame (short hair: only where some is in view),
-    else from the top of the head. None for a bald body, without an anatomy layer, or
+    for long hair, which falls over the neck and shoulders). Long hair comes from where
+    the scalp's painted hair lies in the frame, else from the top of the head; short
+    hair only from a side of the frame that the painted hair reaches, and no further
+    than its length. None for a bald body, without an anatomy layer, or
     when more than ``HAIR_OFF_BODY`` of the lock would lie over the background."""
     look = (getattr(body, "meta", None) or {}).get("look") or {}
     anatomy = layers.get("anatomy")
@@ -465,12 +466,17 @@ def hair_occluder(scene: ViewScene, body, layers: dict, rng, share: float) -> Oc
     if not on_body or head.sum() < (0.05 if long_hair else HAIR_HEAD_SHARE) * on_body:
         return None
     hair_px = head & (layers["semantic"] == SEMANTIC_NONSKIN)
-    if not long_hair and hair_px.mean() < HAIR_IN_VIEW:
+    # short hair reaches the frame's edge only where the painted hair does: the side
+    # with most of it along the border
+    border = [hair_px[0].sum(), hair_px[:, -1].sum(), hair_px[-1].sum(), hair_px[:, 0].sum()]
+    if not long_hair and (hair_px.mean() < HAIR_IN_VIEW or max(border) == 0):
         return None
     if rng.random() >= share:
         return None
     h, w = anatomy.shape
-    if hair_px.mean() >= HAIR_IN_VIEW:
+    if not long_hair:
+        up, least = np.array([(0, -1), (1, 0), (0, 1), (-1, 0)][int(np.argmax(border))], float), 0.0
+    elif hair_px.mean() >= HAIR_IN_VIEW:
         ys, xs = np.nonzero(hair_px)
         up, least = np.array([xs.mean() - w / 2, ys.mean() - h / 2]), 0.05 * max(h, w)
     else:   # the top of the head: world up in the image (x right, y down)
