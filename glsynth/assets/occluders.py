@@ -83,6 +83,23 @@ def _coords(box, origin, axis):
     return xx * ax + yy * ay, -xx * ay + yy * ax
 
 
+def _near_edge(shape, origin, inward, deepest):
+    """The frame's pixels less than ``deepest`` px in from an edge through ``origin``
+    facing ``inward``: their box, their depth and place along the edge (px), and that
+    place as an index into a noise row of 4 x the frame's long side centred on
+    ``origin``. None when no pixel is that near."""
+    h, w = shape
+    n = max(h, w)
+    depth, _ = _coords((0, h, 0, w), origin, inward)
+    near = depth < deepest
+    rows, cols = np.flatnonzero(near.any(1)), np.flatnonzero(near.any(0))
+    if not len(rows):
+        return None
+    box = (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1)
+    depth, along = _coords(box, origin, inward)
+    return box, depth, along, np.clip((along + 2 * n).astype(np.int32), 0, 4 * n - 1)
+
+
 def _box_around(points, margin, shape):
     """(y0, y1, x0, x1): the frame's pixels within ``margin`` of the points' bounds."""
     pts = np.asarray(points, np.float64)
@@ -173,12 +190,7 @@ def _cloth_edge(rng, shape, mm_per_px, light, side, reach, kind):
     standoff = rng.uniform(2, 10) / mm_per_px                         # above the skin
     softness = 0.6 * standoff
     deepest = 1.2 * reach * min(h, w) + fray_px + standoff + 3 * softness + 2
-    depth, _ = _coords((0, h, 0, w), origin, inward)
-    near = depth < deepest
-    rows, cols = np.flatnonzero(near.any(1)), np.flatnonzero(near.any(0))
-    box = (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1)
-    depth, along = _coords(box, origin, inward)
-    idx = np.clip((along + 2 * n).astype(np.int32), 0, 4 * n - 1)
+    box, depth, along, idx = _near_edge(shape, origin, inward, deepest)   # never None: the origin is on the frame
     edge = reach * min(h, w) * (1 + 0.2 * np.clip(wave[idx], -2.5, 2.5) / 2.5) \
         + fray_px * np.clip(fray[idx], -2, 2) / 2
     inside = edge - depth                                              # px inside the cloth
@@ -269,14 +281,10 @@ def _hair_lock(rng, shape, mm_per_px, light, up, reach, hair_rgb, coily, long_ha
     wave = fractal_noise(rng, (1, 4 * n_side), max(rng.uniform(8, 25) / mm_per_px, 6), octaves=3)[0]
     deep = reach * min(h, w) if long_hair else min(reach * min(h, w), length_px)
     stray_px = rng.uniform(1, 4) / mm_per_px           # how far strays reach past it
-    depth, along = _coords((0, h, 0, w), origin, inward)
-    near = depth < 1.35 * deep + stray_px + 2
-    rows, cols = np.flatnonzero(near.any(1)), np.flatnonzero(near.any(0))
-    if not len(rows):
+    near = _near_edge(shape, origin, inward, 1.35 * deep + stray_px + 2)
+    if near is None:
         return None
-    box = (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1)
-    depth, along = _coords(box, origin, inward)
-    idx = np.clip((along + 2 * n_side).astype(np.int32), 0, 4 * n_side - 1)
+    box, depth, _, idx = near
     edge = deep * (1 + 0.3 * np.clip(wave[idx], -2.5, 2.5) / 2.5)
     inside = (edge - depth).astype(np.float32)                    # px inside the outline
     bh, bw = inside.shape

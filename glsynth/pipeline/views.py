@@ -466,17 +466,18 @@ def hair_occluder(scene: ViewScene, body, layers: dict, rng, share: float) -> Oc
     if not on_body or head.sum() < (0.05 if long_hair else HAIR_HEAD_SHARE) * on_body:
         return None
     hair_px = head & (layers["semantic"] == SEMANTIC_NONSKIN)
+    hair_share = float(hair_px.mean())
     # short hair reaches the frame's edge only where the painted hair does: the side
     # with most of it along the border
     border = [hair_px[0].sum(), hair_px[:, -1].sum(), hair_px[-1].sum(), hair_px[:, 0].sum()]
-    if not long_hair and (hair_px.mean() < HAIR_IN_VIEW or max(border) == 0):
+    if not long_hair and (hair_share < HAIR_IN_VIEW or max(border) == 0):
         return None
     if rng.random() >= share:
         return None
     h, w = anatomy.shape
     if not long_hair:
         up, least = np.array([(0, -1), (1, 0), (0, 1), (-1, 0)][int(np.argmax(border))], float), 0.0
-    elif hair_px.mean() >= HAIR_IN_VIEW:
+    elif hair_share >= HAIR_IN_VIEW:
         ys, xs = np.nonzero(hair_px)
         up, least = np.array([xs.mean() - w / 2, ys.mean() - h / 2]), 0.05 * max(h, w)
     else:   # the top of the head: world up in the image (x right, y down)
