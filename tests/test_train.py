@@ -83,7 +83,8 @@ def test_loss_is_zero_for_a_perfect_prediction():
     assert seg_jaccard_loss(onehot(t2, 3), t2, ign).item() == 0.0
 
 
-def test_seg_loss_matches_hand_computation_per_image_and_channel():
+@pytest.mark.parametrize("skin_loss", ["paper", "exclusive"])
+def test_seg_loss_matches_hand_computation_per_image_and_channel(skin_loss):
     t = _seg_example()
     g = torch.Generator().manual_seed(0)
     p = torch.softmax(torch.randn(2, 3, 8, 8, generator=g), 1)
@@ -97,13 +98,13 @@ def test_seg_loss_matches_hand_computation_per_image_and_channel():
             w = np.ones((8, 8))
             if c in (0, 1):
                 w[ig[b]] = 0                             # nevus boxes: lesion and skin channels
-            if c == 1:
+            if c == 1 and skin_loss == "paper":
                 w[tn[b] == 0] = 0                        # lesion pixels: skin channel
             if (gc * w).sum() == 0:
                 continue                                 # empty truth: ignored
             losses.append(1 - fuzzy_j(pn[b, c], gc, w))
     assert len(losses) == 5                              # image 1 has no lesion
-    got, counted = seg_jaccard_loss(p, t, ign, return_parts=True)
+    got, counted = seg_jaccard_loss(p, t, ign, return_parts=True, skin_loss=skin_loss)
     assert counted.tolist() == [[True, True, True], [False, True, True]]
     assert got.item() == pytest.approx(np.mean(losses), rel=1e-5)
 
@@ -153,6 +154,17 @@ def test_loss_ignores_exactly_what_the_paper_ignores():
     assert changed(0, img0)
     # non-skin channel: nothing ignored, nevus boxes and lesion pixels included
     assert changed(2, ign) and changed(2, lesion)
+    # the exclusive skin loss counts skin predicted on a lesion, and costs more for more
+    # of it; the nevus boxes stay ignored
+    q = p.clone()
+    q[:, 1][lesion] = 0.99
+    worse = seg_jaccard_loss(q, t, ign, skin_loss="exclusive").item()
+    assert worse > seg_jaccard_loss(p, t, ign, skin_loss="exclusive").item() + 1e-3
+    assert seg_jaccard_loss(q, t, ign).item() == pytest.approx(base, abs=1e-7)
+    q[:, 1][ign] = 0.5
+    assert seg_jaccard_loss(q, t, ign, skin_loss="exclusive").item() == pytest.approx(worse, abs=1e-7)
+    with pytest.raises(ValueError, match="skin_loss"):
+        seg_jaccard_loss(p, t, ign, skin_loss="lesion")
     # no "nevi" in the JSON: nothing ignored
     assert not nevi_ignore_mask({}, (4, 4)).any()
     m = nevi_ignore_mask({"nevi": [{"id": 1, "box": [1, 0, 3, 2]}, {"id": 2, "box": [3.2, 3, 9, 9]}]}, (4, 5))
@@ -230,6 +242,17 @@ def test_interrupted_training_resumes_to_the_same_weights(synth, tmp_path):
         for k, v in full[key].items():
             assert torch.allclose(v.float(), done[key][k].float(), atol=1e-6), (key, k)
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".tmp-")]
+
+
+def test_the_skin_loss_is_stored_kept_on_resume_and_checked(synth, tmp_path):
+    kw = dict(FAST, size=48, epochs=1, seed=5, batch_size=2)
+    part = train(synth, tmp_path / "x.pt", max_steps=1, skin_loss="exclusive", **kw)
+    assert part["hparams"]["skin_loss"] == "exclusive"
+    done = train(synth, tmp_path / "x.pt", resume=True, **kw)   # the stored choice wins
+    assert done["hparams"]["skin_loss"] == "exclusive"
+    from glsynth.errors import InputError
+    with pytest.raises(InputError, match="skin_loss"):
+        train(synth, tmp_path / "y.pt", skin_loss="lesion", **kw)
 
 
 def test_prefetching_keeps_order_raises_errors_and_stops_its_thread():

@@ -23,7 +23,7 @@ def cmd_train(args):
                save_every=args.save_every, progress=not args.quiet, val=args.val,
                val_layout=args.val_layout, val_every=args.val_every, real_train=args.real_train,
                real_layout=args.real_layout, real_ratio=args.real_ratio, ema=args.ema,
-               cache_gb=args.cache_gb)
+               cache_gb=args.cache_gb, skin_loss=args.skin_loss)
     h = ck["history"][-1] if ck["history"] else {}
     print(f"wrote {args.out}: epoch {ck['epoch']}/{ck['epochs_planned']}, step {ck['step']}, "
           f"{ck['n_parameters']} parameters" + (f", last epoch loss {h['loss']:.4f}" if h else "")
@@ -38,6 +38,13 @@ def add_tta_argument(p):
     p.add_argument("--tta", default="d4", choices=("none", "flip", "d4"),
                    help="test-time augmentation: average the logits over the mirror image (flip) "
                         "or all eight flips and quarter turns (d4, the default); none: one view")
+
+
+def add_skin_loss_argument(p):
+    p.add_argument("--skin-loss", default="paper", choices=("paper", "exclusive"),
+                   help="paper: the skin channel's Jaccard ignores lesion pixels (appendix C, the "
+                        "default); exclusive: skin predicted on a lesion counts against it, as the "
+                        "evaluation scores skin (neither lesion nor non-skin)")
 
 
 def cmd_evaluate(args):
@@ -90,6 +97,7 @@ def register(sub):
     p.add_argument("--ema", type=float, default=0.999, metavar="DECAY",
                    help="validate and export an exponential moving average of the weights with "
                         "this decay (default 0.999, about the last 1,000 steps; 0: the last weights)")
+    add_skin_loss_argument(p)
     p.add_argument("--workers", type=int, default=0, help="data loader processes (default 0)")
     p.add_argument("--cache-gb", type=float, default=4.0, metavar="GB",
                    help="keep up to GB of decoded training samples in memory (default 4; only "

@@ -9,7 +9,9 @@ Modifications, as appendix C describes them:
 * channels whose ground truth is empty (inside the pixels that count) are ignored;
 * lesion / skin / non-skin: J is computed for each image and each channel separately;
 * anatomy: J is computed for each channel over the whole batch;
-* the skin channel ignores pixels that are lesion in the ground truth;
+* the skin channel ignores pixels that are lesion in the ground truth (``skin_loss``
+  "paper"; "exclusive" counts them, as the evaluation does: skin there is neither
+  lesion nor non-skin, so skin predicted on a lesion is wrong);
 * the lesion and skin channels ignore pixels inside nevus boxes (existing moles on the
   body texture, which may be skin or lesion) when the sample lists any.
 
@@ -36,7 +38,10 @@ def _jaccard_terms(p, g, w, dims):
     return inter, pw.sum(dims) + mass - inter, mass
 
 
-def seg_jaccard_loss(probs, target, ignore=None, return_parts=False):
+SKIN_LOSSES = ("paper", "exclusive")
+
+
+def seg_jaccard_loss(probs, target, ignore=None, return_parts=False, skin_loss="paper"):
     """Per-image, per-channel fuzzy Jaccard loss for the 3-class head.
 
     probs: B x 3 x H x W softmax probabilities (lesion, skin, non-skin).
@@ -44,6 +49,7 @@ def seg_jaccard_loss(probs, target, ignore=None, return_parts=False):
     (e.g. 255) is ignored in every channel.
     ignore: optional B x H x W bool, True inside nevus boxes (ignored for the lesion and
     skin channels only).
+    skin_loss: "paper" ignores lesion pixels in the skin channel; "exclusive" counts them.
     Returns the mean of 1 - J over the (image, channel) pairs whose truth is not empty
     (0 with a zero gradient when there are none).
     """
@@ -54,7 +60,10 @@ def seg_jaccard_loss(probs, target, ignore=None, return_parts=False):
         keep = (~ignore.bool()).to(probs.dtype)
         w[:, LESION] = w[:, LESION] * keep
         w[:, SKIN] = w[:, SKIN] * keep
-    w[:, SKIN] = w[:, SKIN] * (1 - g[:, LESION])   # lesion pixels do not count for skin
+    if skin_loss == "paper":
+        w[:, SKIN] = w[:, SKIN] * (1 - g[:, LESION])   # lesion pixels do not count for skin
+    elif skin_loss != "exclusive":
+        raise ValueError(f"skin_loss must be one of {SKIN_LOSSES}, got {skin_loss!r}")
     inter, union, mass = _jaccard_terms(probs, g, w, (2, 3))   # B x 3
     counted = mass > 0
     j = inter / union.clamp_min(EPS)
@@ -82,12 +91,12 @@ def anatomy_jaccard_loss(probs, target, return_parts=False):
 
 
 def fuzzy_jaccard_loss(seg_logits, seg_target, anat_logits=None, anat_target=None,
-                       ignore=None, anatomy_weight=1.0):
+                       ignore=None, anatomy_weight=1.0, skin_loss="paper"):
     """Total loss: seg term + anatomy_weight * anatomy term (logits in, softmax inside).
 
     Returns (total, {"seg": float, "anatomy": float}).
     """
-    seg = seg_jaccard_loss(torch.softmax(seg_logits, 1), seg_target, ignore)
+    seg = seg_jaccard_loss(torch.softmax(seg_logits, 1), seg_target, ignore, skin_loss=skin_loss)
     parts = {"seg": float(seg.detach())}
     total = seg
     if anat_logits is not None and anat_target is not None and anatomy_weight:

@@ -148,7 +148,8 @@ def time_train_steps(data, size, batch_size, width, depth, device, n=12, warmup=
 
 def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=False, data=None,
              device=None, seed=0, size=256, width=1.0, depth=0, batch_size=8, lr=2e-3,
-             gen_share=0.3, views_per_body=80, bodies_per_part=2, progress=True, tta="d4") -> dict:
+             gen_share=0.3, views_per_body=80, bodies_per_part=2, progress=True, tta="d4",
+             skin_loss="paper") -> dict:
     """Run the yardstick; returns the summary dict (also written to ``out/summary.json``)."""
     import torch
     from .evaluate import evaluate
@@ -176,7 +177,7 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
     if state is None:
         state = {"config": cfg.to_dict(), "minutes": float(minutes), "seed": int(seed),
                  "device": device, "size": size, "width": width, "depth": depth,
-                 "batch_size": batch_size, "lr": lr, "gen_share": gen_share,
+                 "batch_size": batch_size, "lr": lr, "gen_share": gen_share, "skin_loss": skin_loss,
                  "data": [os.fspath(d) for d in data] if data else None, "spent": {}}
         _save_state(out, state)
     spent = state["spent"]
@@ -213,7 +214,7 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
                    time_limit=max(train_budget, 1.0) * 1.05 / 60.0, resume=os.path.exists(ckpt),
                    seed=seed, width=width, depth=depth, val=val, val_layout=val_layout,
                    steps=state["steps"], fit_minutes=train_budget / 60.0, progress=progress,
-                   save_every=2.0)
+                   save_every=2.0, skin_loss=state.get("skin_loss", "paper"))
         spent["train"] = spent.get("train", 0.0) + time.perf_counter() - t0
         _save_state(out, state)
     else:  # the budget is spent: evaluate what was trained
@@ -232,7 +233,7 @@ def sim2real(cfg, real, layout, minutes, out, val=None, val_layout=None, resume=
         "checkpoint": os.path.basename(model_path), "val": os.fspath(val) if val else None,
         "n_val_images": n_val, "best": ck.get("best"), "gen_share": gen_share,
         "size": size, "width": width, "depth": depth, "n_parameters": ck.get("n_parameters"),
-        "ema": ck["hparams"].get("ema", 0.0),
+        "ema": ck["hparams"].get("ema", 0.0), "skin_loss": ck["hparams"].get("skin_loss", "paper"),
         "seed": seed}}
     summary = evaluate(model_path, real, layout, out, device=device, progress=progress, extra=extra,
                        tta=tta)
@@ -260,7 +261,8 @@ def report_md(s) -> str:
              f"{r['training_seconds']:.0f} s ({r['training_steps']} steps of "
              f"{r.get('seconds_per_step') or float('nan'):.3f} s), total {r['total_seconds']:.0f} s",
              f"- network: SegNet width {r['width']:g}, depth {r['depth']}, "
-             f"{r['n_parameters']} parameters, input {r['size']} px, seed {r['seed']}",
+             f"{r['n_parameters']} parameters, input {r['size']} px, seed {r['seed']}, "
+             f"skin loss {r.get('skin_loss', 'paper')}",
              f"- checkpoint: `{r['checkpoint']}`" + (
                  f" (lowest loss on `{r['val']}`, {r['n_val_images']} images, at step "
                  f"{r['best']['step']})" if r.get("best") and r["checkpoint"].endswith(".best.pt")
@@ -276,7 +278,7 @@ def report_md(s) -> str:
 
 
 def register(sub):
-    from .cli import add_tta_argument
+    from .cli import add_skin_loss_argument, add_tta_argument
     p = sub.add_parser("sim2real", help="generate, train and evaluate on real photographs "
                                         "within a time budget (the sim-to-real yardstick)")
     p.add_argument("--config", default=None, help="YAML config (default: the embedded default)")
@@ -303,6 +305,7 @@ def register(sub):
     p.add_argument("--bodies-per-part", type=int, default=2)
     p.add_argument("--threads", type=int, default=None, help="CPU threads for torch")
     add_tta_argument(p)
+    add_skin_loss_argument(p)
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(fn=cmd_sim2real)
 
@@ -316,6 +319,7 @@ def cmd_sim2real(args):
                  val_layout=args.val_layout, resume=args.resume, data=args.data, device=args.device,
                  seed=args.seed, size=args.size, width=args.width, depth=args.depth,
                  gen_share=args.gen_share, views_per_body=args.views_per_body,
-                 bodies_per_part=args.bodies_per_part, progress=not args.quiet, tta=args.tta)
+                 bodies_per_part=args.bodies_per_part, progress=not args.quiet, tta=args.tta,
+                 skin_loss=args.skin_loss)
     print_summary(s)
     print(f"wrote {args.out}/report.md, summary.json, per_image.csv, grid.png")

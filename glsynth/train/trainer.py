@@ -25,7 +25,7 @@ from ..errors import InputError, ModelFileError, UnavailableError
 from ..io.images import write_bytes
 from ..io.modelfile import load_torch_file
 from . import data as D
-from .loss import fuzzy_jaccard_loss, nevi_ignore_mask, seg_jaccard_loss
+from .loss import SKIN_LOSSES, fuzzy_jaccard_loss, nevi_ignore_mask, seg_jaccard_loss
 from .model import SegNet, count_parameters
 
 log = logging.getLogger(__name__)
@@ -251,9 +251,9 @@ class Validator:
     the lowest fuzzy Jaccard loss). Each image is preprocessed as ``evaluate`` does
     (shorter side = the training size) and its truth resized to match (nearest)."""
 
-    def __init__(self, root, layout="fitz17k", size=256):
+    def __init__(self, root, layout="fitz17k", size=256, skin_loss="paper"):
         from .evaluate import read_real
-        self.root, self.items = os.fspath(root), []
+        self.root, self.items, self.skin_loss = os.fspath(root), [], skin_loss
         for sid, rgb, truth in read_real(root, layout):
             x = D.preprocess(rgb, size)
             t = cv2.resize(truth, (x.shape[2], x.shape[1]), interpolation=cv2.INTER_NEAREST)
@@ -270,7 +270,7 @@ class Validator:
         for _, x, t in self.items:
             logits = model(x[None].to(device))["seg"]
             target = torch.where(t == 3, torch.full_like(t, D.IGNORE), t)[None].to(device)
-            losses.append(float(seg_jaccard_loss(torch.softmax(logits, 1), target)))
+            losses.append(float(seg_jaccard_loss(torch.softmax(logits, 1), target, skin_loss=self.skin_loss)))
             pred = logits.argmax(1)[0].cpu().numpy()
             for k, c in enumerate(self.classes):
                 js[c].append(jaccard(pred == k, t.numpy() == k))
@@ -289,7 +289,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
           width=1.0, depth=0, anatomy_weight=1.0, save_every=5.0, augment=True, progress=True,
           max_steps=None, val=None, val_layout="fitz17k", val_every=None, real_train=None,
           real_layout="fitz17k", real_ratio=0.25, steps=None, ema=0.999, cache_gb=4.0,
-          fit_minutes=None):
+          fit_minutes=None, skin_loss="paper"):
     """Train and write the checkpoint `out`; returns the final checkpoint dict.
 
     data: one folder or a list of ``glsynth generate`` folders (may be empty with
@@ -313,6 +313,8 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
     process slowed that epoch 4x. Fitted only in the first half, six of seven
     yardstick runs met the time limit at 80-96% of their plan, as steps slowed later.
     cache_gb: memory for decoded synthetic samples (``TrainSet``).
+    skin_loss: "paper" (the skin channel ignores lesion pixels, appendix C) or
+    "exclusive" (they count against skin, as the evaluation scores them; loss.py).
     real_train: a folder of real training images mixed into every batch at
     ``real_ratio`` (staged training: ``init`` from a synthetic-pretrained checkpoint
     with real images only).
@@ -334,18 +336,21 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
         depth, real_ratio = h.get("depth", 0), h.get("real_ratio", real_ratio)
         steps, ema, fitted = h.get("steps", steps), h.get("ema", 0.0), h.get("fitted", False)
         fit_minutes = None if fitted else fit_minutes
+        skin_loss = h.get("skin_loss", "paper")
     hparams = {"size": size, "batch_size": batch_size, "lr": lr, "weight_decay": weight_decay,
                "seed": seed, "width": width, "depth": depth, "anatomy_weight": anatomy_weight,
                "augment": augment, "real_ratio": real_ratio, "steps": steps, "ema": ema,
-               "fitted": fitted}
+               "fitted": fitted, "skin_loss": skin_loss}
     if not 0 <= ema < 1:
         raise InputError(f"ema must be in [0, 1), got {ema}")
+    if skin_loss not in SKIN_LOSSES:
+        raise InputError(f"skin_loss must be one of {SKIN_LOSSES}, got {skin_loss!r}")
     torch.manual_seed(seed)
     real = RealSet(real_train, real_layout, size) if real_train else None
     # loader processes start afresh each epoch, so a cache in them would only cost memory
     ds = TrainSet(roots, size=size, seed=seed, augment=augment, real=real,
                   cache_gb=cache_gb if workers == 0 else 0.0)
-    validator = Validator(val, val_layout, size) if val else None
+    validator = Validator(val, val_layout, size, skin_loss) if val else None
     model = SegNet(width=width, depth=depth)
     if ck is None and init:
         init_weights(model, init)
@@ -439,7 +444,7 @@ def train(data, out, size=256, epochs=10, batch_size=8, lr=2e-3, weight_decay=1e
             for g in opt.param_groups:
                 g["lr"] = _lr(lr, step, total)
             o = model(img)
-            loss, parts = fuzzy_jaccard_loss(o["seg"], seg, o["anatomy"], anat, ign, anatomy_weight)
+            loss, parts = fuzzy_jaccard_loss(o["seg"], seg, o["anatomy"], anat, ign, anatomy_weight, skin_loss)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
