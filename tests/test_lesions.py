@@ -276,8 +276,9 @@ def test_every_preset_on_every_skin_type(preset):
     assert ((f.instances > 0) == m).all()
     ids = np.unique(f.instances[f.instances > 0])
     assert ids.tolist() == list(range(1, len(ids) + 1))
-    for k in ids:                                        # one connected piece per instance
+    for k in ids:                   # one connected piece per instance, none a speck
         assert ndimage.label(f.instances == k)[1] == 1
+        assert (f.instances == k).sum() * f.mm_per_px ** 2 >= 0.05
     for fitz in range(1, 7):
         skin = reference_skin(fitz, 128, np.random.default_rng(fitz))
         out = apply_to_skin(f, skin)
@@ -1107,6 +1108,28 @@ def test_kaposi_sarcoma_is_violaceous_on_light_skin_and_darker_on_dark_skin(rng)
             lab = srgb_to_lab(apply_to_skin(f, skin))
             d = np.median(lab[inner], 0) - np.median(lab[outside], 0)
             assert check(d), (fitz, np.round(d, 1))
+
+
+def test_outline_specks_join_the_lesion_they_touch_or_leave_the_mask():
+    """A region of an outline under 0.05 mm^2 is no lesion: one that touches another
+    lesion becomes part of it, a lone one leaves the mask, and a small but real papule
+    stays its own instance (granuloma annulare's seed 1501369465 left two 1-cell specks
+    beside its ring until 2026-12-02)."""
+    from glsynth.assets import morphology as M
+    b = M.Builder(M.Canvas(np.random.default_rng(0), 100, 10.0))      # 0.1 mm cells
+    yy, xx = np.mgrid[:100, :100]
+    b.outline((np.hypot(yy - 50, xx - 40) < 20).astype(np.float32))   # lesion 1
+    speck = np.zeros((100, 100), np.float32)
+    speck[50, 60] = speck[10, 90] = 1                                 # a nick, a lone speck
+    b.outline(speck)                                                  # lesion 2
+    b.outline((np.hypot(yy - 85, xx - 85) < 2).astype(np.float32))    # a 0.4 mm papule
+    M._relabel(b)
+    assert b.instances.max() == 2
+    assert b.instances[50, 60] == b.instances[50, 40] == 1 and b.mask[50, 60]
+    assert b.instances[10, 90] == 0 and not b.mask[10, 90]
+    assert b.instances[85, 85] == 2 and ((b.instances > 0) == b.mask).all()
+    f = M.make_condition("granuloma_annulare", [1501369465], size=256)
+    assert f.instances.max() == 1
 
 
 def test_granuloma_annulare_is_a_raised_ring_without_scale_outlined_with_its_centre(rng):

@@ -1547,9 +1547,28 @@ def make_condition(preset: str, seed, size=512, extent_mm=None) -> LesionFields:
                         params={"extent_mm": round(extent, 2), **{k: v for k, v in extra.items()}})
 
 
-def _relabel(b):
+def _relabel(b, min_mm2=0.05):
     """Instance ids 1..n in order of first appearance, one per connected region of each
-    outlined lesion (lesions that merged keep the first id)."""
+    outlined lesion (lesions that merged keep the first id). A region under ``min_mm2``
+    (0.25 mm across; the smallest petechiae are twice that) is a speck where an outline's
+    threshold nicked a stray peak: it joins the lesion it touches, or leaves the mask."""
+    min_area = min_mm2 / b.c.px ** 2
+    parts = []                                      # (lesion id, its region's pixels)
+    for k in np.unique(b.instances[b.instances > 0]):
+        lab, count = ndimage.label(b.instances == k)
+        parts += [(k, lab == j) for j in range(1, count + 1)]
+    keep = []
+    for k, region in parts:
+        if region.sum() >= min_area:
+            keep.append(region)
+            continue
+        rim = b.instances[ndimage.binary_dilation(region) & ~region]
+        rim = rim[(rim > 0) & (rim != k)]
+        if rim.size:                                # a nick off a neighbour's edge
+            b.instances[region] = np.bincount(rim).argmax()
+        else:
+            b.instances[region] = 0
+            b.mask[region] = False
     out = np.zeros_like(b.instances)
     n = 0
     for k in np.unique(b.instances[b.instances > 0]):
