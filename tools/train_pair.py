@@ -1,7 +1,7 @@
 """Training alone, paired: one dataset, the same fixed steps, one training option changed.
 
     .venv/bin/python tools/train_pair.py --real ../shared/realdev/fitz17k --out /tmp/pair \
-        [--config configs/default.yaml] [--data RUN/data/part000 ...] [--steps 4000] \
+        [--config configs/default.yaml] [--set seed=100 ...] [--data RUN/data/part000 ...] [--steps 4000] \
         [--skin-loss paper,exclusive] [--seed 0] [--tta d4]
 
 Without ``--data`` it first generates the yardstick's share of a 30-minute
@@ -26,6 +26,8 @@ def main():
     ap.add_argument("--layout", default="fitz17k", choices=("fitz17k", "pairs"))
     ap.add_argument("--out", required=True)
     ap.add_argument("--config", default=None, help="YAML config (default: the embedded default)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="config override for the generated data (repeatable)")
     ap.add_argument("--data", action="append", default=None, help="glsynth datasets to train on")
     ap.add_argument("--steps", type=int, default=4000)
     ap.add_argument("--skin-loss", default="paper,exclusive", help="comma-separated arms")
@@ -46,7 +48,7 @@ def main():
             with open(done) as f:
                 folders = json.load(f)
         else:
-            folders = generate_parts(load_config(a.config), a.out, (30 - 1) * 60 * 0.3, state={})
+            folders = generate_parts(load_config(a.config, a.overrides), a.out, (30 - 1) * 60 * 0.3, state={})
             with open(done, "w") as f:
                 json.dump(folders, f)
     results = {}
