@@ -1553,22 +1553,25 @@ def _relabel(b, min_mm2=0.05):
     (0.25 mm across; the smallest petechiae are twice that) is a speck where an outline's
     threshold nicked a stray peak: it joins the lesion it touches, or leaves the mask."""
     min_area = min_mm2 / b.c.px ** 2
-    parts = []                                      # (lesion id, its region's pixels)
+    h, w = b.instances.shape
+    specks = []                     # (lesion id, a box one cell wider, the speck in it)
     for k in np.unique(b.instances[b.instances > 0]):
-        lab, count = ndimage.label(b.instances == k)
-        parts += [(k, lab == j) for j in range(1, count + 1)]
-    keep = []
-    for k, region in parts:
-        if region.sum() >= min_area:
-            keep.append(region)
-            continue
-        rim = b.instances[ndimage.binary_dilation(region) & ~region]
+        lab, _ = ndimage.label(b.instances == k)
+        boxes = ndimage.find_objects(lab)
+        for j in np.flatnonzero(np.bincount(lab.ravel())[1:] < min_area) + 1:
+            ys, xs = boxes[j - 1]
+            box = (slice(max(ys.start - 1, 0), min(ys.stop + 1, h)),
+                   slice(max(xs.start - 1, 0), min(xs.stop + 1, w)))
+            specks.append((k, box, lab[box] == j))
+    for k, box, region in specks:
+        inst = b.instances[box]
+        rim = inst[ndimage.binary_dilation(region) & ~region]
         rim = rim[(rim > 0) & (rim != k)]
         if rim.size:                                # a nick off a neighbour's edge
-            b.instances[region] = np.bincount(rim).argmax()
+            inst[region] = np.bincount(rim).argmax()
         else:
-            b.instances[region] = 0
-            b.mask[region] = False
+            inst[region] = 0
+            b.mask[box][region] = False
     out = np.zeros_like(b.instances)
     n = 0
     for k in np.unique(b.instances[b.instances > 0]):
