@@ -597,7 +597,8 @@ def test_vascular_lesions_are_deep_red(preset, min_a):
 def test_ulcer_floor_lies_below_the_skin_under_pale_slough(rng):
     """An ulcer's floor lies below the skin round it (its granules and slough never lift
     it above), deepest for pyoderma gangrenosum and pressure ulcers; its slough is pale
-    yellow-white, far lighter and less red than the granulating bed it lies on; all
+    yellow-white, far lighter and less red than the granulating bed it lies on (where
+    no film of fibrin covers it); all
     three kinds occur."""
     from glsynth.assets.lesions import reference_skin
     from glsynth.assets.morphology import apply_to_skin, make_condition
@@ -609,13 +610,33 @@ def test_ulcer_floor_lies_below_the_skin_under_pale_slough(rng):
         around = np.median(f.f["height"][~ndimage.binary_dilation(f.mask, iterations=3)])
         assert floor < around - 0.15, (seed, f.params, floor, around)
         depth.setdefault(f.params["kind"], []).append(around - floor)
-        slough, bed = f.f["crust"] > 0.5, f.mask & (f.f["crust"] < 0.05) & (f.f["epidermis"] < 0.1)
+        slough = f.f["crust"] > 0.5
+        bed = f.mask & (f.f["crust"] < 0.05) & (f.f["scale"] < 0.05) & (f.f["epidermis"] < 0.1)
         if slough.sum() > 20:
             lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 96, np.random.default_rng(int(seed)))))
             (l_s, a_s, b_s), (l_b, a_b, _) = np.median(lab[slough], 0), np.median(lab[bed], 0)
             assert l_s > l_b + 6 and a_s < a_b - 15 and b_s > a_s, (seed, lab[slough].mean(0))
     assert set(depth) == {"venous", "pressure", "pyoderma"}, depth
     assert np.median(depth["venous"]) < min(np.median(depth["pressure"]), np.median(depth["pyoderma"]))
+
+
+def test_ulcer_bed_is_speckled_not_a_coat_of_red(rng):
+    """A granulating bed photographs as red granule tops through a pale film of fibrin
+    over part of it. Over draws, deep red (a* above 30) covers a median 15-70% of the
+    floor (slough left out) and a* spreads widely across it (median p90 - p10 above
+    18). Before the film, red covered ~85% and the spread was ~15: one coat of red."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    red, spread = [], []
+    for seed in rng.integers(2 ** 31, size=12):
+        f = make_condition("ulcer", [int(seed)], size=128)
+        lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 128, np.random.default_rng(int(seed)))))
+        d = ndimage.distance_transform_edt(f.mask)
+        floor = (d > 0.3 * d.max()) & (f.f["crust"] < 0.7) & (f.f["epidermis"] < 0.1)
+        a = lab[floor][:, 1]
+        red.append(np.mean(a > 30))
+        spread.append(np.subtract(*np.percentile(a, [90, 10])))
+    assert 0.15 < np.median(red) < 0.7 and np.median(spread) > 18, (red, spread)
 
 
 def test_pyogenic_granuloma_is_a_crimson_dome(rng):

@@ -48,7 +48,7 @@ NEUTRAL = {"melanin": 1.0, "melanin_add": 0.0, "blood": 1.0, "blood_add": 0.0, "
            "bilirubin": 0.0, "epidermis": 1.0, "scale": 0.0, "crust": 0.0, "crust_dark": 0.0, "height": 0.0,
            "gloss": 0.0, "detail": 1.0}
 SCALE_COLOURS = {"white": (236, 232, 226), "silvery": (214, 218, 222), "greasy": (205, 178, 120),
-                 "pus": (232, 216, 168)}
+                 "pus": (232, 216, 168), "fibrin": (236, 226, 204)}
 CRUST_COLOURS = {"honey": (196, 140, 58), "haemorrhagic": (88, 28, 24), "serous": (170, 120, 70),
                  "slough": (214, 196, 138)}
 OLD_CRUST = np.array([72, 36, 26]) / 255.0
@@ -859,6 +859,18 @@ def _ulcer(b, rng, R):
     b.mix("oxygen", bed, 0.8 - 0.25 * (1 - granule * floor) - 0.4 * dusky)
     b.mix("scatter", bed, rng.uniform(0.15, 0.4))                        # new vessels, little collagen
     b.f["height"] += on_floor * min(0.3 * cell, 0.25 * depth) * granule   # the floor stays below the skin
+    # zones of pale, poorly granulating tissue (fewer new vessels, more collagen): pink,
+    # not beefy red
+    pale = smoothstep(-0.3, 1.2, c.noise(R / 3, 2)) * rng.uniform(0.0, 0.8) * (1 - dusky)
+    b.f["blood_add"] -= on_floor * 0.2 * pale
+    b.mix("scatter", on_floor * pale, 0.7)
+    # a thin film of fibrin and exudate over much of the bed, through which only the
+    # granules' red tops show: a granulating bed photographs as red dots on a pale pink
+    # to cream ground, not as a coat of red paint
+    filmy = rng.uniform(-0.8, 0.6)                                      # how much of the bed
+    film = smoothstep(filmy - 0.8, filmy + 0.8, 0.7 * c.noise(R / 5, 2) + 0.6 * c.noise(R / 15, 1))
+    film *= on_floor * rng.uniform(0.3, 0.6) * (1 - 0.85 * smoothstep(0.75, 1.0, granule))
+    b.f["scale"] = np.maximum(b.f["scale"], film)      # (cream-white: SCALE_COLOURS["fibrin"])
     # new epithelium creeping in from the edge: a pink, shiny band where the epidermis
     # is thin again and the granulation beneath shows through it
     margin = bed * (1 - smoothstep(0.0, rng.uniform(0.06, 0.2) * R, sd)) * rng.uniform(0.0, 1.0)
@@ -871,15 +883,17 @@ def _ulcer(b, rng, R):
         b.f["detail"] *= 1 - 0.5 * soggy
         b.f["gloss"] = np.maximum(b.f["gloss"], 0.3 * soggy)
     sloughy = rng.uniform(-0.6, 0.8)                                    # how much of the floor
-    slough = smoothstep(sloughy, sloughy + 1.0, c.noise(R / 2.5, 2)) * on_floor
-    b.crust(slough, rng.uniform(0.6, 1.0), "slough", darken=0.3, lump_mm=R * 0.6,
+    # (its edge ragged at two scales: slough tears and lifts in strands, it does not lie
+    # in smooth-edged pools)
+    slough = smoothstep(sloughy, sloughy + 0.6, c.noise(R / 2.5, 2) + 0.45 * c.noise(R / 10, 2)) * on_floor
+    b.crust(slough, rng.uniform(0.6, 1.0), "slough", darken=0.3, lump_mm=R * 0.2,
             thickness_mm=0.2 * depth)
     b.f["gloss"] = np.maximum(b.f["gloss"], 0.6 * bed)                  # wet
     if rng.random() < 0.3:
         eschar = smoothstep(0.8, 1.8, c.noise(R / 2, 2)) * on_floor
         b.crust(eschar, 1.0, "haemorrhagic")
     b.outline(np.maximum(bed, 0.45 * w_peri), 0.4)
-    return {"kind": kind, "crust_rgb": CRUST_COLOURS["slough"]}
+    return {"kind": kind, "crust_rgb": CRUST_COLOURS["slough"], "scale_rgb": SCALE_COLOURS["fibrin"]}
 
 
 def _lupus(b, rng, R):
