@@ -364,6 +364,10 @@ class PhotoConfig:
                          "smoothstep(x), mid-tone slope 1 + c/2", pair=between(0, 1))
     saturation: list = key([0.0, 0.2], "the phone's chroma boost: chroma times 1 + s about each "
                            "pixel's luma", pair=between(0, 1))
+    watermark: float = key(0.3, "share of images stamped with a publisher's watermark (initials, a web "
+                           "address or a copyright line, as the online atlases that clinical "
+                           "collections come from put on their photographs); labels unchanged",
+                           within=between(0, 1))
     jpeg_quality: list = key([70, 95], "JPEG quality ([0, 0]: no JPEG)", pair=between(0, 100),
                              rule=Rule(_jpeg_quality, "[0, 0] or integers in [1, 100]"))
 

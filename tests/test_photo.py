@@ -21,7 +21,8 @@ RANGES = {"defocus": ("aperture", [0.002, 0.003]), "motion_blur": ("motion_blur"
           "chromatic_aberration": ("chromatic_aberration", [1.0, 2.0]),
           "vignetting": ("vignetting", [0.2, 0.4]), "exposure": ("exposure", [0.3, 0.6]),
           "noise": ("shot_noise", [0.002, 0.004]), "white_balance": ("white_balance", [0.1, 0.2]),
-          "tone": ("contrast", [0.2, 0.4]), "jpeg": ("jpeg_quality", [70, 90])}
+          "tone": ("contrast", [0.2, 0.4]), "jpeg": ("jpeg_quality", [70, 90]),
+          "watermark": ("watermark", 1.0)}
 
 
 def _scene(rng, h=96, w=128):
@@ -36,14 +37,14 @@ def _scene(rng, h=96, w=128):
 def _cfg(**ranges):
     """The camera model on with every effect off ([0, 0]) but those in ``ranges``."""
     off = {k: [0, 0] for k, v in vars(PhotoConfig()).items() if isinstance(v, list)}
-    return PhotoConfig(**{**off, "enabled": True, **ranges})
+    return PhotoConfig(**{**off, "watermark": 0.0, "enabled": True, **ranges})
 
 
 @pytest.mark.parametrize("effect", sorted(RANGES))
 def test_each_effect_zero_is_identity_nonzero_changes(effect, rng):
     img, depth = _scene(rng)
     key, rng_range = RANGES[effect]
-    zero = [0, 0] if effect == "jpeg" else [0.0, 0.0]
+    zero = {"jpeg": [0, 0], "watermark": 0.0}.get(effect, [0.0, 0.0])
     p0 = photo.sample_params(_cfg(**{key: zero}), rng_for(1, "photo", 0, 0), 0.5, 1000.0)
     assert p0["effects"] == {}
     out0 = photo.apply(img, p0, depth)
@@ -77,7 +78,7 @@ def test_parameters_recorded_and_reproducible(rng):
     recorded = json.loads(json.dumps(a))             # what the per-image JSON keeps
     assert np.array_equal(photo.apply(img, a, depth), photo.apply(img, recorded, depth))
     for name, params in a["effects"].items():
-        assert all(np.isfinite(v).all() for v in params.values()), name
+        assert all(np.isfinite(v).all() for v in params.values() if not isinstance(v, str)), name
 
 
 def test_tone_is_the_s_curve_and_the_chroma_boost(rng):
@@ -101,6 +102,38 @@ def test_tone_is_the_s_curve_and_the_chroma_boost(rng):
     assert list(p["effects"]) == ["tone"] and p["effects"]["tone"]["contrast"] == 0
     chroma = lambda im: float(np.abs(im.astype(np.float64) - (im @ photo.LUMA)[..., None]).mean())  # noqa: E731
     assert chroma(photo.apply(img, p)) > chroma(img) * 1.05
+
+
+def test_watermark_is_a_stamp_in_its_place_and_a_share_of_images(rng):
+    """The publisher's stamp changes only the pixels of its text (and shadow), in the
+    corner it names, towards its ink; the share of stamped images follows the config;
+    long text is shrunk to fit the frame, and the stamp scales with the image."""
+    img = np.full((240, 320, 3), 120, np.uint8) + (rng.random((240, 320, 3)) * 20).astype(np.uint8)
+    p = dict(photo.sample_watermark(rng_for(int(rng.integers(1 << 30)), "wm")), place="bottom-left",
+             opacity=1.0, shadow=False, rgb=[255, 255, 255], text="SFS", height=0.06, margin=0.03)
+    out = photo.watermark(img, p)
+    changed = np.abs(out.astype(int) - img).max(-1) > 0
+    ys, xs = np.nonzero(changed)
+    assert changed.sum() > 50 and changed.mean() < 0.05
+    assert ys.min() > 240 * 0.8 and xs.max() < 320 * 0.4              # bottom-left corner
+    assert (out[changed].astype(int) >= img[changed]).all()           # towards white ink
+    assert out[changed].max() == 255                                  # opaque: the ink itself
+    cap = ys.max() - ys.min() + 1
+    assert 0.04 * 240 < cap < 0.09 * 240                              # ~6% of the height
+    big = photo.watermark(cv2.resize(img, (640, 480)), p)
+    bys = np.nonzero(np.abs(big.astype(int) - cv2.resize(img, (640, 480))).max(-1) > 0)[0]
+    assert abs((bys.max() - bys.min() + 1) / cap - 2) < 0.3            # same stamp, twice the size
+    wide = photo.watermark(img, dict(p, text="www." + "x" * 60 + ".com", height=0.05, place="centre"))
+    xs = np.nonzero(np.abs(wide.astype(int) - img).max(-1) > 0)[1]
+    assert xs.min() >= 0.04 * 320 and xs.max() <= 0.96 * 320          # shrunk into the frame
+    shaded = photo.watermark(img, dict(p, shadow=True, opacity=0.7))
+    assert (shaded.astype(int) < img - 5).any()                       # the drop shadow darkens
+    pc = _cfg(watermark=0.3)
+    n = sum("watermark" in photo.sample_params(pc, rng_for(7, "photo", 0, j), 0.5)["effects"]
+            for j in range(400))
+    assert 0.24 < n / 400 < 0.36
+    assert not any("watermark" in photo.sample_params(_cfg(), rng_for(7, "photo", 0, j), 0.5)["effects"]
+                   for j in range(50))
 
 
 def _local_contrast(gray):

@@ -32,15 +32,19 @@ from glsynth.pipeline import generate
 KEYS = {"defocus": "aperture", "motion_blur": "motion_blur", "chromatic_aberration": "chromatic_aberration",
         "vignetting": "vignetting", "exposure": "exposure", "noise": ("shot_noise", "read_noise"),
         "white_balance": ("white_balance", "tint"), "tone": ("contrast", "saturation"),
-        "jpeg": "jpeg_quality"}
+        "watermark": "watermark", "jpeg": "jpeg_quality"}
 
 
 def _scaled(pc, effects, t):
     """A PhotoConfig with only ``effects`` on, each at t x the top of its default range
-    (JPEG: quality 100 - t * (100 - lowest default quality))."""
+    (JPEG: quality 100 - t * (100 - lowest default quality); the watermark: on every
+    image)."""
     out = copy.deepcopy(pc)
     for name, keys in KEYS.items():
         for key in (keys if isinstance(keys, tuple) else (keys,)):
+            if key == "watermark":                        # a share of images, not a strength
+                out.watermark = 1.0 if name in effects and t > 0 else 0.0
+                continue
             lo, hi = getattr(pc, key)
             if name not in effects or t == 0:
                 setattr(out, key, [0, 0])

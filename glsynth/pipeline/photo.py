@@ -31,7 +31,12 @@ Order (the order light takes through a camera), each step optional:
     ``(1 - c) x + c x^2 (3 - 2 x)`` (mid-tones steeper by ``c / 2``, black, mid-grey and
     white fixed) and chroma scaled by ``1 + s`` about each pixel's luma (Rec. 601
     weights: grey stays grey)
-11. JPEG at the sampled quality (OpenCV encode + decode)
+11. watermark: in a share of images (``watermark``) the publisher's stamp, as online
+    atlases put on their photographs (initials, a site's address, a copyright line) in a
+    corner or across the middle, anti-aliased, opaque or translucent. It is a property
+    of where clinical photo collections come from, not of the camera, and it changes no
+    label (the dev set's annotators labelled such text as what lies under it)
+12. JPEG at the sampled quality (OpenCV encode + decode)
 
 An effect whose strength is zero is skipped entirely, so with every strength at zero the
 image is returned unchanged (bit-exact). Parameters are drawn by ``sample_params`` from
@@ -52,7 +57,7 @@ from ..assets.colour import SRGB8_TO_LINEAR
 
 LINEAR_EFFECTS = ("defocus", "motion_blur", "chromatic_aberration", "vignetting", "exposure",
                   "noise", "white_balance")
-EFFECTS = LINEAR_EFFECTS + ("tone", "jpeg")
+EFFECTS = LINEAR_EFFECTS + ("tone", "watermark", "jpeg")
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)   # Rec. 601, as JPEG's YCbCr
 
 # sRGB <-> linear look-up tables (the sRGB transfer function, IEC 61966-2-1)
@@ -133,7 +138,83 @@ def sample_params(pc, rng, focus_distance: float, focal_px: float = 1.0) -> dict
         fx["tone"] = {"contrast": contrast, "saturation": saturation}
     if quality > 0:
         fx["jpeg"] = {"quality": quality}
+    # (drawn last: its text has a variable length, and nothing is drawn after it)
+    stamp = sample_watermark(rng)
+    if stamp["share_draw"] < pc.watermark:
+        fx["watermark"] = {k: v for k, v in stamp.items() if k != "share_draw"}
     return {"enabled": True, "effects": fx, "order": [e for e in EFFECTS if e in fx]}
+
+
+_FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_COMPLEX,
+          cv2.FONT_HERSHEY_TRIPLEX, cv2.FONT_HERSHEY_PLAIN, cv2.FONT_HERSHEY_COMPLEX_SMALL)
+_PLACES = ("bottom-left", "bottom-right", "top-left", "top-right", "bottom-centre", "centre")
+_INKS = {"white": (255, 255, 255), "grey": (200, 200, 200), "black": (20, 20, 20), "yellow": (250, 225, 60)}
+
+
+def _word(rng, lo, hi, letters="abcdefghijklmnopqrstuvwxyz"):
+    return "".join(rng.choice(list(letters), int(rng.integers(lo, hi + 1))))
+
+
+def sample_watermark(rng) -> dict:
+    """The parameters of one publisher's stamp (``share_draw`` is compared with the
+    config's share): its text (initials, a web address or a copyright line, as on
+    the online atlases clinical collections were gathered from), font, cap height as a
+    share of the image height, place and margin, ink, opacity, stroke weight and
+    whether it has a dark drop shadow."""
+    share_draw = float(rng.random())
+    kind = str(rng.choice(["initials", "site", "copyright"], p=[0.45, 0.4, 0.15]))
+    if kind == "initials":
+        text = _word(rng, 2, 4, "ABCDEFGHIJKLMNOPQRSTUVWXYZ")
+        height = float(rng.uniform(0.035, 0.09))
+    elif kind == "site":
+        tld = str(rng.choice([".com", ".org", ".net", ".com.br", ".info", ".de"]))
+        text = str(rng.choice(["www.", "", "http://"], p=[0.6, 0.3, 0.1])) + _word(rng, 5, 12) + tld
+        height = float(rng.uniform(0.018, 0.04))
+    else:
+        text = f"(c) {int(rng.integers(1995, 2024))} " + _word(rng, 4, 10).capitalize()
+        height = float(rng.uniform(0.018, 0.035))
+    ink = str(rng.choice(list(_INKS), p=[0.7, 0.1, 0.1, 0.1]))
+    return {"share_draw": share_draw, "text": text, "kind": kind,
+            "font": int(rng.integers(len(_FONTS))), "height": height,
+            "place": str(rng.choice(_PLACES, p=[0.3, 0.3, 0.1, 0.1, 0.1, 0.1])),
+            "margin": float(rng.uniform(0.01, 0.05)), "rgb": list(_INKS[ink]),
+            "opacity": float(rng.uniform(0.5, 1.0)), "weight": float(rng.uniform(0.08, 0.2)),
+            "shadow": bool(rng.random() < 0.4)}
+
+
+def watermark(img_u8, p):
+    """A publisher's stamp of parameters ``p`` (``sample_watermark``) over an 8-bit
+    sRGB image (a new array), sized from the image's height so that one record gives
+    the same stamp at any resolution; kept inside the frame."""
+    h, w = img_u8.shape[:2]
+    font, text = _FONTS[int(p["font"]) % len(_FONTS)], str(p["text"])
+    cap = max(p["height"] * h, 4.0)
+    (_, th), _ = cv2.getTextSize(text, font, 1.0, 1)
+    scale = cap / max(th, 1)
+    thick = max(1, int(round(p["weight"] * cap)))
+    (tw, th), base = cv2.getTextSize(text, font, scale, thick)
+    if tw > 0.9 * w:                                      # too long for the frame: smaller
+        scale, thick = scale * 0.9 * w / tw, max(1, int(round(thick * 0.9 * w / tw)))
+        (tw, th), base = cv2.getTextSize(text, font, scale, thick)
+    m = p["margin"] * min(h, w)
+    x = {"left": m, "right": w - m - tw}.get(p["place"].split("-")[-1], 0.5 * (w - tw))
+    y = {"top": m + th, "bottom": h - m - base}.get(p["place"].split("-")[0], 0.5 * (h + th))
+    off = max(1, thick // 2 + 1) if p["shadow"] else 0
+    # only the text's box (and its shadow's) is touched: a stamp covers ~1% of the image
+    x0, y0 = max(int(x) - thick - 2, 0), max(int(y) - th - thick - 2, 0)
+    x1, y1 = min(int(x + tw) + thick + off + 3, w), min(int(y) + base + thick + off + 3, h)
+    org = (int(round(x)) - x0, int(round(y)) - y0)
+    out = img_u8.copy()
+    roi = out[y0:y1, x0:x1].astype(np.float32)
+    if off:
+        cover = np.zeros(roi.shape[:2], np.uint8)
+        cv2.putText(cover, text, (org[0] + off, org[1] + off), font, scale, 255, thick, cv2.LINE_AA)
+        roi *= 1 - cover[..., None].astype(np.float32) * (0.6 * p["opacity"] / 255)
+    cover = np.zeros(roi.shape[:2], np.uint8)
+    cv2.putText(cover, text, org, font, scale, 255, thick, cv2.LINE_AA)
+    roi += cover[..., None].astype(np.float32) * (p["opacity"] / 255) * (np.asarray(p["rgb"], np.float32) - roi)
+    out[y0:y1, x0:x1] = np.clip(np.rint(roi), 0, 255).astype(np.uint8)
+    return out
 
 
 # ---- the effects (float32 linear RGB, H x W x 3) ---------------------------------------
@@ -317,6 +398,8 @@ def apply(image: np.ndarray, params: dict, depth: np.ndarray | None = None) -> n
         img = linear_to_srgb8(lin, fx["white_balance"]["gains"] if "white_balance" in fx else None)
     if "tone" in fx:
         img = tone(img, fx["tone"]["contrast"], fx["tone"]["saturation"])
+    if "watermark" in fx:
+        img = watermark(img, fx["watermark"])
     if "jpeg" in fx:
         img = jpeg(img, fx["jpeg"]["quality"])
     return img
