@@ -182,41 +182,6 @@ def sample_watermark(rng) -> dict:
             "shadow": bool(rng.random() < 0.4)}
 
 
-def watermark(img_u8, p):
-    """A publisher's stamp of parameters ``p`` (``sample_watermark``) over an 8-bit
-    sRGB image (a new array), sized from the image's height so that one record gives
-    the same stamp at any resolution; kept inside the frame."""
-    h, w = img_u8.shape[:2]
-    font, text = _FONTS[int(p["font"]) % len(_FONTS)], str(p["text"])
-    cap = max(p["height"] * h, 4.0)
-    (_, th), _ = cv2.getTextSize(text, font, 1.0, 1)
-    scale = cap / max(th, 1)
-    thick = max(1, int(round(p["weight"] * cap)))
-    (tw, th), base = cv2.getTextSize(text, font, scale, thick)
-    if tw > 0.9 * w:                                      # too long for the frame: smaller
-        scale, thick = scale * 0.9 * w / tw, max(1, int(round(thick * 0.9 * w / tw)))
-        (tw, th), base = cv2.getTextSize(text, font, scale, thick)
-    m = p["margin"] * min(h, w)
-    x = {"left": m, "right": w - m - tw}.get(p["place"].split("-")[-1], 0.5 * (w - tw))
-    y = {"top": m + th, "bottom": h - m - base}.get(p["place"].split("-")[0], 0.5 * (h + th))
-    off = max(1, thick // 2 + 1) if p["shadow"] else 0
-    # only the text's box (and its shadow's) is touched: a stamp covers ~1% of the image
-    x0, y0 = max(int(x) - thick - 2, 0), max(int(y) - th - thick - 2, 0)
-    x1, y1 = min(int(x + tw) + thick + off + 3, w), min(int(y) + base + thick + off + 3, h)
-    org = (int(round(x)) - x0, int(round(y)) - y0)
-    out = img_u8.copy()
-    roi = out[y0:y1, x0:x1].astype(np.float32)
-    if off:
-        cover = np.zeros(roi.shape[:2], np.uint8)
-        cv2.putText(cover, text, (org[0] + off, org[1] + off), font, scale, 255, thick, cv2.LINE_AA)
-        roi *= 1 - cover[..., None].astype(np.float32) * (0.6 * p["opacity"] / 255)
-    cover = np.zeros(roi.shape[:2], np.uint8)
-    cv2.putText(cover, text, org, font, scale, 255, thick, cv2.LINE_AA)
-    roi += cover[..., None].astype(np.float32) * (p["opacity"] / 255) * (np.asarray(p["rgb"], np.float32) - roi)
-    out[y0:y1, x0:x1] = np.clip(np.rint(roi), 0, 255).astype(np.uint8)
-    return out
-
-
 # ---- the effects (float32 linear RGB, H x W x 3) ---------------------------------------
 
 def coc_map(depth, kappa, focus, max_coc):
@@ -355,6 +320,41 @@ def tone(img_u8, contrast, saturation):
     if saturation > 0:
         m = (1 + saturation) * np.eye(3) - saturation * np.outer(np.ones(3), LUMA)
         out = cv2.transform(out.reshape(-1, 1, 3), m.astype(np.float32)).reshape(img.shape)
+    return out
+
+
+def watermark(img_u8, p):
+    """A publisher's stamp of parameters ``p`` (``sample_watermark``) over an 8-bit
+    sRGB image (a new array), sized from the image's height so that one record gives
+    the same stamp at any resolution; kept inside the frame."""
+    h, w = img_u8.shape[:2]
+    font, text = _FONTS[int(p["font"]) % len(_FONTS)], str(p["text"])
+    cap = max(p["height"] * h, 4.0)
+    (_, th), _ = cv2.getTextSize(text, font, 1.0, 1)
+    scale = cap / max(th, 1)
+    thick = max(1, int(round(p["weight"] * cap)))
+    (tw, th), base = cv2.getTextSize(text, font, scale, thick)
+    if tw > 0.9 * w:                                      # too long for the frame: smaller
+        scale, thick = scale * 0.9 * w / tw, max(1, int(round(thick * 0.9 * w / tw)))
+        (tw, th), base = cv2.getTextSize(text, font, scale, thick)
+    m = p["margin"] * min(h, w)
+    x = {"left": m, "right": w - m - tw}.get(p["place"].split("-")[-1], 0.5 * (w - tw))
+    y = {"top": m + th, "bottom": h - m - base}.get(p["place"].split("-")[0], 0.5 * (h + th))
+    off = max(1, thick // 2 + 1) if p["shadow"] else 0
+    # only the text's box (and its shadow's) is touched: a stamp covers ~1% of the image
+    x0, y0 = max(int(x) - thick - 2, 0), max(int(y) - th - thick - 2, 0)
+    x1, y1 = min(int(x + tw) + thick + off + 3, w), min(int(y) + base + thick + off + 3, h)
+    org = (int(round(x)) - x0, int(round(y)) - y0)
+    out = img_u8.copy()
+    roi = out[y0:y1, x0:x1].astype(np.float32)
+    if off:
+        cover = np.zeros(roi.shape[:2], np.uint8)
+        cv2.putText(cover, text, (org[0] + off, org[1] + off), font, scale, 255, thick, cv2.LINE_AA)
+        roi *= 1 - cover[..., None].astype(np.float32) * (0.6 * p["opacity"] / 255)
+    cover = np.zeros(roi.shape[:2], np.uint8)
+    cv2.putText(cover, text, org, font, scale, 255, thick, cv2.LINE_AA)
+    roi += cover[..., None].astype(np.float32) * (p["opacity"] / 255) * (np.asarray(p["rgb"], np.float32) - roi)
+    out[y0:y1, x0:x1] = np.clip(np.rint(roi), 0, 255).astype(np.uint8)
     return out
 
 
