@@ -6,8 +6,12 @@ smoothed with a mask-normalised Gaussian (sigma 3% of the shorter side, so pores
 noise drop out) and the spread of each channel is measured: the standard deviation of L*
 divided by mean L* and the standard deviations of a* and b*. Also per image with a lesion,
 its contrast: CIEDE76 between the mean Lab inside the lesion (eroded 3 px) and that of the
-healthy skin 12-40 px outside it. Printed are the 10th / 50th / 90th percentiles over
-images, and the mean skin colour, for each folder.
+healthy skin 12-40 px outside it. And per image, how much of its healthy skin lies in deep
+shade: the share of those pixels (unsmoothed) whose L* is below SHADE (0.6) times the
+image's median skin L*, a fifth of the median's luminance or less (skin turning away from
+the light, a fold, a limb behind). Printed are the 10th / 50th / 90th percentiles over
+images, the mean skin colour, and the share of images with at least 5% of their skin in
+deep shade, for each folder.
 
     python tools/skin_color_stats.py OUT_DIR [OUT_DIR ...] --real ../shared/realdev/fitz17k
 """
@@ -21,6 +25,7 @@ import numpy as np
 REAL_MASKS = ("lesions.png", "nonskin.png", "selected_lesion.png")
 SHORT = 512
 SIGMA = 0.03 * SHORT
+SHADE = 0.6
 
 
 def spread(img_bgr, skin):
@@ -48,6 +53,14 @@ def contrast(img_bgr, lesion, skin):
     return float(np.linalg.norm(lab[inside].mean(0) - lab[ring].mean(0)))
 
 
+def shade(img_bgr, skin):
+    """Share of the ``skin`` pixels whose L* is below SHADE x their median L*, or None."""
+    if skin.sum() < 2000:
+        return None
+    L = cv2.cvtColor(img_bgr.astype(np.float32) / 255.0, cv2.COLOR_BGR2LAB)[..., 0][skin]
+    return float((L < SHADE * np.median(L)).mean())
+
+
 def _resized(img, *masks):
     h, w = masks[0].shape
     s = SHORT / min(h, w)
@@ -64,7 +77,7 @@ def synthetic(folder):
         if sem is None:
             raise SystemExit(f"{folder}: no semantic target for {sid}")
         img, skin, lesion = _resized(cv2.imread(f), sem == 1, sem == 2)
-        out.append((spread(img, skin), contrast(img, lesion, skin)))
+        out.append((spread(img, skin), contrast(img, lesion, skin), shade(img, skin)))
     return out
 
 
@@ -81,21 +94,23 @@ def real(folder):
         ns = cv2.imread(os.path.join(p, "nonskin.png"), cv2.IMREAD_GRAYSCALE) > 0
         near = cv2.dilate(les.astype(np.uint8), np.ones((25, 25), np.uint8)) > 0
         img, healthy, lesion, skin = _resized(im, ~near & ~ns, les, ~les & ~ns)
-        out.append((spread(img, healthy), contrast(img, lesion, skin)))
+        out.append((spread(img, healthy), contrast(img, lesion, skin), shade(img, healthy)))
     return out
 
 
 def report(name, rows):
-    spreads = [s for s, _ in rows if s is not None]
+    spreads = [r[0] for r in rows if r[0] is not None]
     if not spreads:
         print(f"{name}: no image with enough healthy skin")
         return
     v = np.array(spreads)
     pct = lambda x: "/".join(f"{y:.3g}" for y in np.percentile(x, [10, 50, 90]))  # noqa: E731
-    dE = [c for _, c in rows if c is not None]
+    dE = [r[1] for r in rows if r[1] is not None]
+    sh = np.array([r[2] for r in rows if r[2] is not None])
     print(f"{name} ({len(v)} images): L std/mean {pct(v[:, 0])}  a* std {pct(v[:, 1])}  "
           f"b* std {pct(v[:, 2])}  mean Lab {v[:, 3].mean():.1f} {v[:, 4].mean():.1f} "
-          f"{v[:, 5].mean():.1f}  lesion dE ({len(dE)}) {pct(dE) if dE else '-'}")
+          f"{v[:, 5].mean():.1f}  lesion dE ({len(dE)}) {pct(dE) if dE else '-'}  "
+          f"deep shade {pct(sh)}, {(sh >= 0.05).mean():.0%} of images at 5% or more")
 
 
 def main():
