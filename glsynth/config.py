@@ -249,7 +249,9 @@ class ViewsConfig:
                           within=between(0, 1))
     min_lesion: float = key(0.0, "views showing a smaller share of lesion are rejected",
                             within=between(0, 1))
-    ambient: list = key([0.1, 0.6], "room light: ambient intensity", pair=_LIGHT)
+    ambient: list = key([0.03, 0.3], "room light: ambient intensity (light from the room's walls and "
+                        "ceiling; low enough that skin turning away from the lamp falls into "
+                        "deep shade, as in clinical photographs)", pair=_LIGHT)
     ambient_ground: list = key([0.25, 0.7], "room light: ambient reaching a surface facing the floor, "
                                "relative to one facing the ceiling (1: even, the paper's)",
                                pair=between(0, 1))
