@@ -313,8 +313,10 @@ class ViewsConfig:
                         "wild (the paper's: a surface point or lesion at distance w)",
                         rule=Rule(_framing_weights, f"a mapping of some of {', '.join(FRAMINGS)} "
                                   "to weights >= 0, not all 0"))
-    closeup_fraction: list = key([0.08, 2.0], "close-ups: lesion area / frame area (above 1: a "
-                                 "large lesion or eruption seen in part, running off the frame)",
+    closeup_fraction: list = key([0.08, 2.0], "close-ups: the lesion's share of the frame, as "
+                                 "the frame shows it (a spread group framed until its lesions "
+                                 "fill that share); above 1, lesion area / frame area (a large "
+                                 "lesion or eruption seen in part, running off the frame)",
                                  pair=between(1e-4, 10))
     closeup_tilt: float = key(25.0, "close-ups: the camera within this angle of the normal (degrees)",
                               within=Interval(0, 90, hi_open=True))

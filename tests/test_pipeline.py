@@ -384,6 +384,35 @@ def test_closeups_frame_a_lesion_at_the_requested_fraction(renderer, rng, radius
         assert w == v.closeup_w[0] and abs(side - v.closeup_min_width[0]) < 1e-9 and got < 0.5 * frac
 
 
+def test_closeups_of_a_spread_group_frame_the_share_it_shows(renderer, rng):
+    """A group of discs spread far wider than the frame its area alone would need (as
+    pityriasis rosea or a psoriasis arrangement are): the close-up still shows the lesion
+    over the requested share of the frame, within a tenth, where framing by the group's
+    total area shows a fraction of it."""
+    from glsynth.pipeline import views as V
+    frac = rng.uniform(0.15, 0.4)
+    v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0",
+                     "views.closeup_min_width=[0.005, 0.005]").views
+    r = rng.uniform(0.004, 0.008)
+    centres = np.c_[rng.uniform(-0.15, 0.15, (7, 2)), np.zeros(7)]
+    centres[:, :2] += np.arange(7)[:, None] * [0.0, 3 * r]          # never touching
+    a, d = rng.uniform(0, 2 * np.pi, 7000), r * np.sqrt(rng.uniform(0, 1, 7000))
+    pts = centres.repeat(1000, 0) + np.c_[d * np.cos(a), d * np.sin(a), np.zeros_like(a)]
+    site = V.LesionSite(pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)), 7 * np.pi * r * r)
+    point, normal, direction, w, _, fov = V._closeup_camera([site], rng, v)
+    cam = gs.Camera.from_surface(point, direction, w, fov_deg=fov, width=renderer.width,
+                                 height=renderer.height)
+    mesh = plane(rng, size=1.0)
+    out = renderer.render(mesh, cam, passes=("gbuffer",))
+    p = np.einsum("hwk,hwkc->hwc", out["bary"], mesh.vertices[mesh.faces[np.maximum(out["face_id"], 0)]])
+    x0 = (renderer.width - renderer.height) // 2          # the square frame of a view
+    p = p[:, x0:x0 + renderer.height]
+    inside = (np.linalg.norm(p[:, :, None] - centres[None, None], axis=-1) < r).any(-1)
+    assert abs(inside.mean() - frac) < 0.1 * frac
+    by_area = np.sqrt(site.area / frac)                 # the frame the whole group's area asks
+    assert 2 * w * np.tan(np.radians(fov) / 2) < 0.9 * by_area
+
+
 def test_closeups_of_small_lesions_range_from_macro_to_context(rng):
     """A lesion too small to fill its share of the narrowest frame is framed as wide as a
     log-uniform draw in closeup_min_width: macro shots and context shots alike, never

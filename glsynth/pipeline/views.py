@@ -125,29 +125,89 @@ def _wild_camera(mesh, lesion_sites, rng, v):
 
 
 def _closeup_camera(lesion_sites, rng, v):
-    """A clinical close-up: a lesion filling a fraction of the frame (log-uniform in
-    views.closeup_fraction, as area), seen within views.closeup_tilt of its normal,
-    its centre off the image centre by up to a fifth of the frame. The frame is never
-    narrower than a log-uniform draw in views.closeup_min_width, from a 1:1 macro shot
-    to a small lesion shown with skin round it (which then fills less of the frame); a
-    frame narrower than views.fov_deg covers from the nearest distance
-    (views.closeup_w) is had by narrowing the field of view, as a phone's telephoto
-    lens or a crop does. Returns (point, normal, direction, w, centre, fov_deg)."""
+    """A clinical close-up: a lesion filling a share of the frame (log-uniform in
+    views.closeup_fraction), seen within views.closeup_tilt of its normal, its centre off
+    the image centre by up to a fifth of the frame. Below 1 the share is what the frame
+    shows of the lesion (``frame_share``): a group of papules or plaques spread wider than
+    the frame fills the share asked for, not the share its whole area would fill. Above 1
+    the frame is that many times smaller than the lesion's area (part of a large plaque
+    or eruption, running off the frame). The frame is never narrower than a log-uniform
+    draw in views.closeup_min_width, from a 1:1 macro shot to a small lesion shown with
+    skin round it (which then fills less of the frame); a frame narrower than
+    views.fov_deg covers from the nearest distance (views.closeup_w) is had by narrowing
+    the field of view, as a phone's telephoto lens or a crop does. Returns (point,
+    normal, direction, w, centre, fov_deg)."""
     k = int(rng.integers(len(lesion_sites)))
     site = lesion_sites[k]
     frac = log_uniform(rng, v.closeup_fraction)
-    width = max(np.sqrt(site.area / frac), log_uniform(rng, v.closeup_min_width))  # on the surface
+    min_width = log_uniform(rng, v.closeup_min_width)
+    width = max(np.sqrt(site.area / frac), min_width)   # on the surface, by the lesion's area
+    aim = site.points.mean(0) + rng.uniform(-0.2, 0.2, 3) * width
+    i = int(np.argmin(np.sum((site.points - aim) ** 2, axis=1)))
+    point, normal = site.points[i], site.normals[i]
+    direction = _tilted(normal, rng, v.closeup_tilt)
+    if frac < 1:
+        width = _width_for_share(site, point, direction, frac, min_width, v)
+    w, fov = _closeup_lens(width, v)
+    return point, normal, direction, w, f"lesion {k + 1}", fov
+
+
+def _closeup_lens(width, v):
+    """(w, fov_deg) of a close-up framing ``width`` of skin: views.fov_deg from w in
+    views.closeup_w, the field of view narrowed below the nearest distance."""
     w_wanted = width / (2 * np.tan(np.radians(v.fov_deg) / 2))
     w = float(np.clip(w_wanted, *v.closeup_w))
     fov = v.fov_deg
     if w_wanted < v.closeup_w[0]:
         fov = float(np.degrees(2 * np.arctan(width / (2 * w))))
-    half_tan = np.tan(np.radians(fov) / 2)
-    centroid = site.points.mean(0)
-    aim = centroid + rng.uniform(-0.2, 0.2, 3) * 2 * w * half_tan
-    i = int(np.argmin(np.sum((site.points - aim) ** 2, axis=1)))
-    point, normal = site.points[i], site.normals[i]
-    return point, normal, _tilted(normal, rng, v.closeup_tilt), w, f"lesion {k + 1}", fov
+    return w, fov
+
+
+# lesion points a share is measured on (every k-th beyond): ~1 ms a frame
+SHARE_POINTS = 20000
+
+
+def frame_share(site, point, direction, width, v) -> float:
+    """The share of a square close-up frame, ``width`` of skin wide at ``point`` seen
+    along ``direction``, that the lesion covers: the area of its surface points in the
+    frame (each ``site.area / N``, foreshortened towards the camera and scaled by its
+    depth), over the frame's; points facing away count for nothing, occlusion is
+    ignored."""
+    w, fov = _closeup_lens(width, v)
+    eye = np.asarray(point, np.float64) + w * np.asarray(direction, np.float64) / np.linalg.norm(direction)
+    step = max(1, len(site.points) // SHARE_POINTS)
+    pts, nrm = site.points[::step], site.normals[::step]
+    m = Camera.look_at(eye, point, fov_deg=fov).view_matrix()
+    p = (pts - eye) @ m[:3, :3].T
+    z = -p[:, 2]
+    t = np.tan(np.radians(fov) / 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inside = (z > 0) & (np.abs(p[:, 0]) < t * z) & (np.abs(p[:, 1]) < t * z)
+        to_eye = eye - pts
+        facing = np.einsum("ij,ij->i", nrm, to_eye) / np.linalg.norm(to_eye, axis=1)
+        per_point = site.area / len(pts)
+        covered = np.sum(np.where(inside, per_point * np.maximum(facing, 0) / z ** 2, 0.0))
+    return float(covered / (2 * t) ** 2)
+
+
+def _width_for_share(site, point, direction, share, min_width, v) -> float:
+    """The frame width (on the skin) at which the lesion covers ``share`` of a close-up
+    (``frame_share``), found by bisection in log width between min_width and the widest
+    close-up (views.closeup_w's far end at views.fov_deg); min_width when the lesion
+    fills less than its share even there (a lesion too small for it)."""
+    lo = min_width
+    hi = max(lo, 2 * v.closeup_w[1] * np.tan(np.radians(v.fov_deg) / 2))
+    if frame_share(site, point, direction, lo, v) <= share:
+        return lo
+    if frame_share(site, point, direction, hi, v) >= share:
+        return hi
+    for _ in range(16):     # to ~0.01% of the width
+        mid = np.sqrt(lo * hi)
+        lo, hi = (mid, hi) if frame_share(site, point, direction, mid, v) > share else (lo, mid)
+    # the lesion area in the frame at hi, over the share: exact when the whole lesion
+    # lies in the frame (that area is then the same for any width between)
+    covered = frame_share(site, point, direction, hi, v) * hi * hi
+    return float(np.clip(np.sqrt(covered / share), lo, hi))
 
 
 def _regional_camera(body, lesion_sites, rng, v):
