@@ -856,6 +856,37 @@ def test_purpura_is_purple_and_comes_as_petechiae_papules_or_a_bruise(rng):
     assert set(seen) == {"petechiae", "palpable", "ecchymosis"}
 
 
+def test_telangiectasia_is_fine_red_lines_outlined_by_the_area_they_occupy(rng):
+    """Small extents are spider angiomas: legs radiating from a central punctum, found in
+    most directions around it; larger ones a leg patch or facial telangiectasia. The
+    vessels are thin lines, redder than the skin between them, a minority of the outline,
+    which is the one area they occupy (one instance) and holds nearly all of them."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    seen = set()
+    extents = [8, 12, 16, 80] + rng.uniform(20, 58, 16).tolist()   # facial or leg: 0.45 / 0.55
+    for seed, extent in zip(rng.integers(2 ** 31, size=len(extents)), extents):
+        f = make_condition("telangiectasia", [int(seed)], size=256, extent_mm=extent)
+        kind = f.params["kind"]
+        seen.add(kind)
+        assert (kind == "spider") == (extent < 18) and (kind == "leg" or extent < 60)
+        assert f.instances.max() == 1
+        blood = f.f["blood_add"]                         # the vessels stand out of any flush
+        lines = blood - ndimage.median_filter(blood, 9) > 0.04
+        assert lines.sum() > 20 and lines.sum() < 0.3 * f.mask.sum(), (kind, lines.sum(), f.mask.sum())
+        assert (lines & f.mask).sum() > 0.95 * lines.sum(), kind
+        lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 256, np.random.default_rng(int(seed)))))
+        between = f.mask & ~ndimage.binary_dilation(lines, iterations=3)
+        assert np.median(lab[lines][:, 1]) > np.median(lab[between][:, 1]) + 5, kind
+        if kind == "spider":
+            legs = lines & (np.hypot(*np.meshgrid(np.arange(256) - 127.5, np.arange(256) - 127.5))
+                            * f.mm_per_px > 1.5)
+            ys, xs = np.nonzero(legs)
+            octants = np.unique(((np.arctan2(ys - 127.5, xs - 127.5) + np.pi) / (np.pi / 4)).astype(int) % 8)
+            assert len(octants) >= 5, octants
+    assert seen == {"spider", "leg", "facial"}
+
+
 def test_discoid_lupus_has_a_scaly_dark_rim_around_a_pale_scar_with_plugs(rng):
     """Discoid lupus: the rim is raised, scalier and darker than the centre (more
     melanin), the centre is depigmented, and it holds follicular plugs, small separate

@@ -1452,6 +1452,84 @@ def _actinic_keratosis(b, rng, R):
     return {"scale": colour, "scale_rgb": SCALE_COLOURS[colour]}
 
 
+def _telangiectasia(b, rng, R):
+    """Telangiectasia, small vessels dilated for good and seen through the skin as lines
+    0.05-0.4 mm wide. Under 18 mm a spider angioma: a red central arteriole, a little
+    raised, with 5-10 fine legs radiating from it and a faint flush round them (face,
+    neck, upper trunk, hands). Larger, a patch of leg telangiectases (fine red to violet
+    branching lines, some in sunburst clusters, over one to three bluer reticular veins
+    1-2.5 mm wide that lie deeper) or, under 60 mm, facial telangiectasia (straight and
+    gently curved red lines over a diffuse flush, as on rosacea or sun-damaged cheeks).
+    The outline is the area the vessels occupy, as annotators draw it, not each line."""
+    c = b.c
+    if 2 * R < 18.0:
+        kind = "spider"
+        n = int(rng.integers(5, 11))
+        heads = rng.uniform(0, 2 * np.pi) + np.arange(n) * 2 * np.pi / n + rng.normal(0, 0.25, n)
+        # (a leg runs its length, then forks once into branches 0.75 as long: ~0.8 R)
+        legs = vessel_tree(c, np.zeros((n, 2)), heads, rng.uniform(0.05, 0.1), R * rng.uniform(0.35, 0.5),
+                           depth=1)
+        punctum = b.weight(c.shape("round", rng.uniform(0.25, 0.5), irregular=0.15), 0.2, "ill-defined")
+        region, inside, area = _one_area(b, c.shape("round", R * 0.85, irregular=0.2, warp=0.1), R * 0.2)
+        b.erythema(area * 0.5, rng.uniform(0.5, 1.2), oxygen=0.85)       # the flush round it
+        b.erythema(legs * inside, rng.uniform(3.0, 5.0), oxygen=0.85)    # arterial: bright red
+        b.erythema(punctum, 6.0, oxygen=0.9)
+        b.f["height"] += 0.2 * punctum
+        b.outline((region | (punctum > 0.4)).astype(np.float32), 0.5)
+        return {"kind": kind, "legs": n}
+    # (a cheek or a nose holds at most ~6 cm of facial telangiectasia)
+    kind = str(rng.choice(["leg", "facial"], p=[0.55, 0.45])) if 2 * R < 60.0 else "leg"
+    sd = c.shape("round", R, aspect=rng.uniform(0.45, 1.0), irregular=0.25, warp=0.12)
+    region, inside, area = _one_area(b, sd, R * 0.2)
+    lines = np.zeros((c.size, c.size), np.float32)
+    if kind == "leg":
+        # sunburst clusters: fine vessels radiating from a feeding point, forking twice
+        clusters = int(np.clip((R / 12.0) ** 2, 2, 10))
+        for p in arrange(c, "widespread", clusters, R * 0.7, R * 0.25):
+            n = int(rng.integers(3, 7))
+            heads = rng.uniform(0, 2 * np.pi) + np.arange(n) * 2 * np.pi / n + rng.normal(0, 0.4, n)
+            starts = np.tile(np.asarray(p, np.float64), (n, 1))
+            np.maximum(lines, vessel_tree(c, starts, heads, rng.uniform(0.15, 0.4), R * rng.uniform(0.2, 0.45),
+                                          depth=2), out=lines)
+        # reticular veins: long, bent, 1-2.5 mm wide, deeper (less red, bluer)
+        veins = np.zeros_like(lines)
+        for _ in range(int(rng.integers(1, 4))):
+            a = rng.uniform(0, np.pi)
+            start = -R * np.array([np.cos(a), np.sin(a)]) + rng.normal(0, R * 0.2, 2)
+            np.maximum(veins, vessel_tree(c, [start], [a], rng.uniform(1.0, 2.5), R * 1.6, depth=1), out=veins)
+        veins = cv2.GaussianBlur(veins, (0, 0), max(0.6, 0.4 / c.px)) * inside
+        b.f["blood_add"] += 0.2 * veins
+        b.mix("oxygen", veins, 0.35)
+        b.mix("scatter", veins, 0.6)
+        oxygen = rng.uniform(0.45, 0.8)                  # red to violet
+        b.erythema(area * 0.4, rng.uniform(0.5, 1.5), oxygen=oxygen)
+    else:
+        # many short, nearly straight vessels in every direction, a few forked
+        n = int(np.clip(rng.uniform(0.8, 2.0) * (R / 3.0) ** 2, 10, 200))
+        starts = np.array(arrange(c, "widespread", n, R * 0.95, R * 0.04))
+        lengths = R * rng.uniform(0.1, 0.3)
+        for p in starts:
+            np.maximum(lines, vessel_tree(c, [p], [rng.uniform(0, 2 * np.pi)], rng.uniform(0.08, 0.2),
+                                          lengths, depth=int(rng.integers(0, 2))), out=lines)
+        oxygen = rng.uniform(0.7, 0.9)
+        b.erythema(area * (0.7 + 0.3 * c.noise(R / 3, 2)), rng.uniform(0.6, 1.6), oxygen=0.8)
+    b.erythema(lines * inside, rng.uniform(4.0, 6.0), oxygen=oxygen)
+    b.outline(region.astype(np.float32), 0.5)
+    return {"kind": kind}
+
+
+def _one_area(b, sd, border):
+    """An ill-defined area (signed distance ``sd``, fading over ``border`` mm) as one
+    region: the largest piece of its outline, holes filled (a warp may pinch off an
+    islet). Returns the region (bool), a weight that fades to 0 just inside its edge (for
+    what must stay within the outline), and the area's weight cut to the region."""
+    w = b.weight(sd, border, "ill-defined")
+    lab, _ = ndimage.label(w > 0.4)
+    region = ndimage.binary_fill_holes(lab == 1 + int(np.argmax(np.bincount(lab.ravel())[1:])))
+    inside = smoothstep(0.5, 0.9, cv2.GaussianBlur(region.astype(np.float32), (0, 0), max(1.0, 0.25 * border / b.c.px)))
+    return region, inside, w * np.maximum(inside, region)
+
+
 # preset -> (builder, size range in mm (the condition's extent))
 PRESETS = {
     "nevus": (_nevus, (2.5, 9.0)),
@@ -1482,6 +1560,7 @@ PRESETS = {
     "kaposi_sarcoma": (_kaposi_sarcoma, (8.0, 80.0)),
     "granuloma_annulare": (_granuloma_annulare, (15.0, 60.0)),
     "actinic_keratosis": (_actinic_keratosis, (15.0, 60.0)),
+    "telangiectasia": (_telangiectasia, (5.0, 100.0)),
 }
 
 
@@ -1519,6 +1598,7 @@ SITES = {
     "kaposi_sarcoma": {"head": 0.05, "torso": 0.05, "legs": 0.55, "feet": 0.25, "arms": 0.1},
     "granuloma_annulare": {"torso": 0.05, "legs": 0.2, "feet": 0.1, "arms": 0.3, "hands": 0.35},
     "actinic_keratosis": {"head": 0.7, "arms": 0.1, "hands": 0.2},
+    "telangiectasia": {"head": 0.4, "torso": 0.15, "legs": 0.35, "hands": 0.05, "arms": 0.05},
 }
 
 
