@@ -252,6 +252,21 @@ def _draw_segment(c, out, p, q, width):
     np.maximum(out[r0:r1, c0:c1], cov, out=out[r0:r1, c0:c1])
 
 
+def headings_around(rng, n, jitter):
+    """``n`` headings (radians) spread evenly round the circle from a random start, each
+    off by a normal draw of ``jitter``: vessels leaving a point or crossing a dome."""
+    return rng.uniform(0, 2 * np.pi) + np.arange(n) * 2 * np.pi / n + rng.normal(0, jitter, n)
+
+
+def largest_piece(inside):
+    """The largest connected piece of a bool grid with its holes filled (all False when
+    there is none): one lesion's outline, without the specks and islets at its edge."""
+    lab, count = ndimage.label(inside)
+    if not count:
+        return np.zeros_like(inside, dtype=bool)
+    return ndimage.binary_fill_holes(lab == 1 + int(np.argmax(np.bincount(lab.ravel())[1:])))
+
+
 def arrange(canvas, kind, n, spread_mm, min_gap_mm):
     """Centres (mm) of ``n`` lesions: grouped (a cluster), satellite (one big, small ones
     around), dermatomal (a band), widespread (over the whole grid)."""
@@ -462,10 +477,9 @@ def _melanoma(b, rng, R):
     b.mix("melanin", regress, 0.6)
     b.f["height"] += rng.uniform(0.0, 0.8) * smoothstep(0, R, sd)
     # one lesion: the outline takes in its regressed (pale) areas, not specks at its edge
-    lab, count = ndimage.label(w > 0.35)
-    if count:
-        main = lab == 1 + int(np.argmax(np.bincount(lab.ravel())[1:]))
-        b.outline(ndimage.binary_fill_holes(main).astype(np.float32), 0.5)
+    main = largest_piece(w > 0.35)
+    if main.any():
+        b.outline(main.astype(np.float32), 0.5)
     return {"irregularity": "high", "lobes": lobes, "border_fades": bool(fade.max() > 0)}
 
 
@@ -595,7 +609,7 @@ def _bcc(b, rng, R):
     # tapering (until 2026-11-28 the zero lines of a noise: even-width meanders, a map's
     # rivers, that read as cracks)
     n = int(rng.integers(2, 6))
-    around = rng.uniform(0, 2 * np.pi) + np.arange(n) * 2 * np.pi / n + rng.normal(0, 0.3, n)
+    around = headings_around(rng, n, 0.3)
     starts = R * rng.uniform(0.55, 0.85, (n, 1)) * np.stack([np.cos(around), np.sin(around)], 1)
     vessels = vessel_tree(c, starts, around + np.pi + rng.normal(0, 0.5, n),
                           rng.uniform(0.06, 0.12) if superficial else rng.uniform(0.1, 0.2),
@@ -1465,7 +1479,7 @@ def _telangiectasia(b, rng, R):
     if 2 * R < 18.0:
         kind = "spider"
         n = int(rng.integers(5, 11))
-        heads = rng.uniform(0, 2 * np.pi) + np.arange(n) * 2 * np.pi / n + rng.normal(0, 0.25, n)
+        heads = headings_around(rng, n, 0.25)
         # (a leg runs its length, then forks once into branches 0.75 as long: ~0.8 R)
         legs = vessel_tree(c, np.zeros((n, 2)), heads, rng.uniform(0.05, 0.1), R * rng.uniform(0.35, 0.5),
                            depth=1)
@@ -1487,7 +1501,7 @@ def _telangiectasia(b, rng, R):
         clusters = int(np.clip((R / 12.0) ** 2, 2, 10))
         for p in arrange(c, "widespread", clusters, R * 0.7, R * 0.25):
             n = int(rng.integers(3, 7))
-            heads = rng.uniform(0, 2 * np.pi) + np.arange(n) * 2 * np.pi / n + rng.normal(0, 0.4, n)
+            heads = headings_around(rng, n, 0.4)
             starts = np.tile(np.asarray(p, np.float64), (n, 1))
             np.maximum(lines, vessel_tree(c, starts, heads, rng.uniform(0.15, 0.4), R * rng.uniform(0.2, 0.45),
                                           depth=2), out=lines)
@@ -1524,8 +1538,7 @@ def _one_area(b, sd, border):
     islet). Returns the region (bool), a weight that fades to 0 just inside its edge (for
     what must stay within the outline), and the area's weight cut to the region."""
     w = b.weight(sd, border, "ill-defined")
-    lab, _ = ndimage.label(w > 0.4)
-    region = ndimage.binary_fill_holes(lab == 1 + int(np.argmax(np.bincount(lab.ravel())[1:])))
+    region = largest_piece(w > 0.4)
     inside = smoothstep(0.5, 0.9, cv2.GaussianBlur(region.astype(np.float32), (0, 0), max(1.0, 0.25 * border / b.c.px)))
     return region, inside, w * np.maximum(inside, region)
 
