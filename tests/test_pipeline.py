@@ -390,14 +390,18 @@ def test_closeups_of_a_spread_group_frame_the_share_it_shows(renderer, rng):
     over the requested share of the frame, within a tenth, where framing by the group's
     total area shows a fraction of it."""
     from glsynth.pipeline import views as V
-    frac = rng.uniform(0.15, 0.4)
+    # below the ~0.5 the narrowest frame shows when its centre falls on a disc's edge
+    frac = rng.uniform(0.15, 0.35)
     v = small_config(f"views.closeup_fraction=[{frac}, {frac}]", "views.closeup_tilt=0",
                      "views.closeup_min_width=[0.005, 0.005]").views
     r = rng.uniform(0.004, 0.008)
-    centres = np.c_[rng.uniform(-0.15, 0.15, (7, 2)), np.zeros(7)]
-    centres[:, :2] += np.arange(7)[:, None] * [0.0, 3 * r]          # never touching
-    a, d = rng.uniform(0, 2 * np.pi, 7000), r * np.sqrt(rng.uniform(0, 1, 7000))
-    pts = centres.repeat(1000, 0) + np.c_[d * np.cos(a), d * np.sin(a), np.zeros_like(a)]
+    # seven of the 6 x 6 cells, 5 cm apart, over 30 cm; jittered, never touching
+    cells = rng.choice(36, 7, replace=False)
+    centres = np.c_[np.c_[cells % 6, cells // 6] * 0.05 - 0.125 + rng.uniform(-0.015, 0.015, (7, 2)),
+                    np.zeros(7)]
+    n = 2800        # a disc's points: dense enough to measure the narrowest frame by
+    a, d = rng.uniform(0, 2 * np.pi, 7 * n), r * np.sqrt(rng.uniform(0, 1, 7 * n))
+    pts = centres.repeat(n, 0) + np.c_[d * np.cos(a), d * np.sin(a), np.zeros_like(a)]
     site = V.LesionSite(pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)), 7 * np.pi * r * r)
     point, normal, direction, w, _, fov = V._closeup_camera([site], rng, v)
     cam = gs.Camera.from_surface(point, direction, w, fov_deg=fov, width=renderer.width,
