@@ -286,3 +286,40 @@ def test_conditions_are_placed_in_their_usual_regions_by_share_then_area():
     off = Paster(None, body, None, PasteSettings(view_size=VIEW, body_sites=False))
     assert off.site_p("bcc") is off.face_p
     assert np.allclose(off.face_p, area_p)
+
+
+def test_an_eruption_spreads_further_draws_of_its_preset_round_its_first_lesion(rng):
+    """lesions.eruption: the further lesions of an eruption are new draws of the first's
+    preset (rebuilt from what their placements record), placed within the radius of the
+    first on free skin, and all of them record the first's instance as their eruption."""
+    from glsynth.assets.lesions import ProceduralLesions, lesion_from_meta
+    body = _skin_body(rng, tex=512)
+    body.meta = {"fitzpatrick": int(rng.integers(1, 7))}
+    r = gs.Renderer(VIEW, VIEW)
+    tx = TexelGeometry.of(r, body.mesh)
+    seed = int(rng.integers(1 << 30))
+    bank = ProceduralLesions(2, seed=seed, size=96, kinds=["pityriasis_rosea", "urticaria"])
+    first = bank[int(rng.integers(2))]
+    further = [bank.spread(first, j) for j in range(1, 4)]
+    radius = float(rng.uniform(0.15, 0.25))
+    settings = PasteSettings(view_size=VIEW, max_depth_change=0.05)
+    res = paste_lesions(r, body, tx, [first], settings, ("t",), seed,
+                        eruption=(lambda lesion: further if lesion is first else [], radius))
+    p0, rest = res.placements[0], res.placements[1:]
+    assert p0.lesion_id == first.id and len(rest) >= 1
+    ids = [i for p in res.placements for i in p.ids]
+    assert len(ids) == len(set(ids))                              # each lesion its own ids
+    centres = body.mesh.vertices[body.mesh.faces].mean(1)
+    slack = np.max(np.linalg.norm(centres[:, None] - body.mesh.vertices[body.mesh.faces], axis=-1))
+    for p in res.placements:
+        assert p.lesion_meta["eruption"] == p0.instance
+    for p in rest:
+        assert p.lesion_meta["preset"] == first.meta["preset"] and p.lesion_meta["copy"] >= 1
+        gap = np.linalg.norm(np.subtract(p.camera["target"], p0.camera["target"]))
+        assert gap < radius + slack
+        again = lesion_from_meta(p.lesion_meta)
+        drawn = further[p.lesion_meta["copy"] - 1]
+        assert again.id == drawn.id == p.lesion_id
+        assert np.array_equal(again.fields.mask, drawn.fields.mask)
+        assert not np.array_equal(drawn.fields.mask, first.fields.mask)   # its own draw
+    r.close()

@@ -550,3 +550,44 @@ def test_regional_views_frame_the_affected_part_by_its_size(rng):
         assert centre.startswith("part ")
         width = 0.1 if centre == "part 1" else 0.3
         np.testing.assert_allclose(w, width / fill / (2 * np.tan(np.radians(fov) / 2)), rtol=1e-6)
+
+
+def test_an_eruption_is_recorded_and_framed_as_one_lesion(tmp_path, rng):
+    """With lesions.eruption=1 a body's first eruptive condition spreads: its further
+    lesions are recorded in the body's placements and each view's lesion list with the
+    eruption they belong to, and close-ups frame the eruption as one lesion (their
+    centre names one of the body's lesion sites, the eruption counted once)."""
+    preset = str(rng.choice(["pityriasis_rosea", "urticaria", "psoriasis"]))
+    cfg = small_config("blend.method=paste", "lesions.eruption=1.0", "lesions.eruption_lesions=[2, 3]",
+                       f"lesions.kinds=[{preset}]", "views.framing={closeup: 1.0}",
+                       "views.per_body=6", f"seed={int(rng.integers(1000))}")
+    gs.pipeline.generate(cfg, tmp_path)
+    placements = json.loads((tmp_path / "bodies" / "body000" / "placements.json").read_text())
+    placements = placements["placements"] if isinstance(placements, dict) else placements
+    first = placements[0]         # every lesion is eruptive: the first placed one spreads
+    members = [p for p in placements if p["lesion_meta"].get("eruption") == first["instance"]]
+    assert len(members) >= 2 and members[0] is first
+    assert all(p["lesion_meta"]["preset"] == preset for p in placements)
+    sites = len(placements) - len(members) + 1
+    from glsynth.pipeline.bodies import load_body
+    from glsynth.pipeline.paste import PastedTextures
+    from glsynth.pipeline.stages import Generate2DViews
+    instances, loaded = PastedTextures.load_instances(tmp_path / "bodies" / "body000")
+    r = gs.Renderer(64, 64)
+    mesh = load_body(cfg, "body000").mesh
+    found = Generate2DViews._lesion_points(None, r, mesh, instances, loaded)
+    for p in loaded:                                  # the same lesions, each on its own
+        p.lesion_meta.pop("eruption", None)
+    alone = Generate2DViews._lesion_points(None, r, mesh, instances, loaded)
+    r.close()
+    assert len(found) == sites and len(alone) == len(placements)
+    merged = [alone[i] for i, p in enumerate(placements) if p in members]
+    assert np.array_equal(found[0].points, np.concatenate([m.points for m in merged]))
+    assert found[0].area == pytest.approx(sum(m.area for m in merged))
+    for f in sorted((tmp_path / "targets").glob("*.json")):
+        view = json.loads(f.read_text())
+        assert view["camera"]["centre"] in {f"lesion {k}" for k in range(1, sites + 1)}
+        for les in view["lesions"]:
+            member = les["source"].get("eruption") == first["instance"]
+            assert member == any(set(range(les["instance"], les["instance"] + 1)) & set(p["instance_ids"])
+                                 for p in members)

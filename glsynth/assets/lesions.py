@@ -489,18 +489,36 @@ class ProceduralLesions(Sequence):
         rng = np.random.default_rng([self.seed, i])
         kind = self.kind(i)
         fitz = int(self.types[rng.integers(len(self.types))])
-        fields = _condition(kind, self.seed, i, self.size)
-        meta = {"kind": kind, "preset": kind, "seed": self.seed, "index": i, "fitzpatrick": fitz,
-                "grid": self.size, "extent_mm": round(fields.extent_mm, 2),
-                "instances": int(fields.instances.max()), "params": fields.params}
-        return FieldLesion(fields, f"procedural-{kind}-{self.seed}-{i}", meta, fitz)
+        return _field_lesion(kind, self.seed, i, self.size, fitz)
+
+    def spread(self, lesion, copy: int):
+        """Another lesion of the same condition as ``lesion`` (one of this set), for a
+        generalised eruption: the same preset and reference skin, its own draw (``copy``
+        >= 1; copy 0 is ``lesion`` itself)."""
+        m = lesion.meta
+        return _field_lesion(m["preset"], int(m["seed"]), int(m["index"]), int(m["grid"]),
+                             int(m["fitzpatrick"]), copy)
+
+
+def _field_lesion(kind, seed, index, grid, fitz, copy=0):
+    fields = _condition(kind, seed, index, grid, copy)
+    meta = {"kind": kind, "preset": kind, "seed": seed, "index": index, "fitzpatrick": fitz,
+            "grid": grid, "extent_mm": round(fields.extent_mm, 2),
+            "instances": int(fields.instances.max()), "params": fields.params}
+    name = f"procedural-{kind}-{seed}-{index}"
+    if copy:
+        meta["copy"] = copy
+        name += f"-{copy}"
+    return FieldLesion(fields, name, meta, fitz)
 
 
 @functools.lru_cache(maxsize=16)
-def _condition(preset: str, seed: int, index: int, grid: int):
-    """Procedural lesion ``index`` of a run's ``seed``. Cached: a worker pastes a body's
-    lesions and builds their decals moments apart (~2 s each to make; ~16 MB at 512)."""
-    return make_condition(preset, [seed, index], size=grid)
+def _condition(preset: str, seed: int, index: int, grid: int, copy: int = 0):
+    """Procedural lesion ``index`` of a run's ``seed`` (``copy`` >= 1: another draw of its
+    preset, a lesion of the same eruption). Cached: a worker pastes a body's lesions and
+    builds their decals moments apart (~0.1-2 s each to make; ~16 MB at 512)."""
+    key = [seed, index] if copy == 0 else [seed, index, 0x65727570, copy]
+    return make_condition(preset, key, size=grid)
 
 
 def procedural_lesions(n: int, seed: int = 0, size: int = 256, kinds=None,
@@ -513,9 +531,10 @@ def lesion_from_meta(meta: dict) -> Lesion:
     """The lesion a placement recorded (its ``lesion_meta``): a procedural condition made
     again from its preset, seed and index, or a lesion image read again from its files."""
     if meta.get("preset"):
+        copy = int(meta.get("copy", 0))
         fields = _condition(meta["preset"], int(meta["seed"]), int(meta["index"]),
-                            int(meta.get("grid", 256)))
-        return FieldLesion(fields, f"procedural-{meta['preset']}-{meta['seed']}-{meta['index']}",
-                           meta, meta.get("fitzpatrick", 3))
+                            int(meta.get("grid", 256)), copy)
+        name = f"procedural-{meta['preset']}-{meta['seed']}-{meta['index']}" + (f"-{copy}" if copy else "")
+        return FieldLesion(fields, name, meta, meta.get("fitzpatrick", 3))
     return load_lesion(meta["image_path"], meta["mask_path"], meta.get("id"), meta,
                        colour_constancy=bool(meta.get("colour_constancy")))

@@ -1614,6 +1614,14 @@ SITES = {
     "telangiectasia": {"head": 0.4, "torso": 0.15, "legs": 0.35, "hands": 0.05, "arms": 0.05},
 }
 
+# conditions that often spread over a region as many separate lesions (a generalised
+# eruption: psoriasis, eczema, urticaria, pityriasis rosea, lichen planus, vitiligo, acne,
+# purpura of the legs, and the plaques of a drug eruption or mycosis fungoides, which the
+# inflammatory patch draws); `lesions.eruption` spreads one of a body's such lesions over
+# the skin around it
+ERUPTIVE = ("psoriasis", "eczema", "urticaria", "pityriasis_rosea", "inflammatory_patch",
+            "lichen_planus", "vitiligo", "acne", "purpura")
+
 
 # grid side / condition extent, tried in turn until the outline stays off the grid's edge
 GRID_MARGINS = (1.4, 1.9, 2.6, 3.6)

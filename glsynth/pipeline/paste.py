@@ -221,13 +221,24 @@ class Paster:
             self._site_p[preset] = p / p.sum() if p.sum() > 0 else self.face_p
         return self._site_p[preset]
 
-    def place(self, lesion, rng) -> Placement | None:
+    def near_p(self, point, radius) -> np.ndarray | None:
+        """Skin faces by area, only those whose centre lies within ``radius`` (scene
+        units) of ``point``; None when there are none."""
+        if not hasattr(self, "_centres"):
+            mesh = self.body.mesh
+            self._centres = mesh.vertices[mesh.faces].mean(1)
+        near = np.sum((self._centres - np.asarray(point)) ** 2, axis=1) < radius ** 2
+        p = self.face_p * near
+        return p / p.sum() if p.sum() > 0 else None
+
+    def place(self, lesion, rng, near=None) -> Placement | None:
         """Try up to ``attempts`` places, the first half where the lesion's condition is
         usually seen (``site_p``) and the rest anywhere on the skin, so that a condition
-        too large for its usual region still finds a place; paste and return the
-        placement, or None."""
+        too large for its usual region still finds a place; with ``near`` (face
+        probabilities, ``near_p``) every attempt there. Paste and return the placement,
+        or None."""
         s, mesh = self.s, self.body.mesh
-        site_p = self.site_p((lesion.meta or {}).get("preset"))
+        site_p = self.site_p((lesion.meta or {}).get("preset")) if near is None else near
         k = max((max(p.ids) for p in self.result.placements), default=0) + 1
         fields = getattr(lesion, "fields", None)
         unit = mesh.skin.unit if mesh.skin is not None else 1.0
@@ -235,7 +246,8 @@ class Paster:
         reasons = {}
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * s.dilation + 1,) * 2)
         for attempt in range(1, s.attempts + 1):
-            f = rng.choice(len(self.face_p), p=site_p if attempt <= (s.attempts + 1) // 2 else self.face_p)
+            anywhere = near is None and attempt > (s.attempts + 1) // 2
+            f = rng.choice(len(self.face_p), p=self.face_p if anywhere else site_p)
             bary = rng.dirichlet((1.0, 1.0, 1.0))
             corners = mesh.faces[f]
             point = bary @ mesh.vertices[corners]
@@ -431,13 +443,23 @@ def _jsonable(meta):
 
 
 def paste_lesions(renderer, body, texels, lesions, settings: PasteSettings, seed_keys, seed,
-                  spares=()):
+                  spares=(), eruption=None):
     """Place ``lesions`` (a list) on ``body``; returns PastedTextures. When none of them
     finds a place (conditions larger than the body's flat skin), ``spares`` (an iterable
-    of other lesions) are tried in turn until one does."""
+    of other lesions) are tried in turn until one does. ``eruption`` (spread, radius in
+    m): the first placed lesion for which ``spread(lesion)`` gives further lesions
+    spreads; they go within the radius of it, and all of them record ``eruption`` (its
+    instance id) in their lesion_meta, so that views treat them as one lesion."""
     paster = Paster(renderer, body, texels, settings)
-    for i, lesion in enumerate(lesions):
-        paster.place(lesion, rng_for(seed, "paste", *seed_keys, i))
+    placed = [paster.place(lesion, rng_for(seed, "paste", *seed_keys, i))
+              for i, lesion in enumerate(lesions)]
+    if eruption is not None:
+        spread, radius = eruption
+        for lesion, p in zip(lesions, placed):
+            further = spread(lesion) if p is not None else []
+            if further:
+                _spread(paster, p, further, radius, rng_keys=(seed, "paste", *seed_keys))
+                break
     tried = len(lesions)
     if lesions and not paster.result.placements:
         for lesion in spares:
@@ -453,3 +475,18 @@ def paste_lesions(renderer, body, texels, lesions, settings: PasteSettings, seed
                              f"lesions of {settings.size} of the view; lower lesions.size or raise "
                              "paste.max_depth_change)")
     return paster.result
+
+
+def _spread(paster, first: Placement, further, radius_m, rng_keys):
+    """Place the ``further`` lesions of an eruption round ``first`` (within ``radius_m``
+    of its centre, on skin, clear of other lesions) and mark them all as one eruption."""
+    mesh = paster.body.mesh
+    unit = mesh.skin.unit if mesh.skin is not None else 1.0
+    near = paster.near_p(first.camera["target"], radius_m * unit)
+    if near is None:
+        return
+    first.lesion_meta["eruption"] = first.instance
+    for j, lesion in enumerate(further):
+        p = paster.place(lesion, rng_for(*rng_keys, "eruption", j), near=near)
+        if p is not None:
+            p.lesion_meta["eruption"] = first.instance

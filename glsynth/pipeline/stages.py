@@ -122,13 +122,32 @@ class SelectAndPaste(_Stage):
             # the rest of the bank, in a seeded order, for a body that can hold none of these
             taken = set(picks.tolist())
             spares = (lesions[int(i)] for i in rng.permutation(len(lesions)) if i not in taken)
+            eruption = _eruption(cfg.lesions, lesions, chosen, rng_for(cfg.seed, "eruption", body_id))
             renderer = self.renderer
             texels = TexelGeometry.of_body(renderer, body.mesh)
             result = paste_lesions(renderer, body, texels, chosen, settings, (body_id,), cfg.seed,
-                                   spares)
+                                   spares, eruption)
             result.save(folder)
             self._time("paste", time.perf_counter() - t0)
             log.info("%s: %d of %d lesions placed", body_id, len(result.placements), len(chosen))
+
+
+def _eruption(le, bank, chosen, rng):
+    """paste_lesions' ``eruption`` (spread, radius in m) when the body's first placed
+    procedural lesion of an eruptive preset spreads (probability ``lesions.eruption``),
+    else None."""
+    from ..assets.morphology import ERUPTIVE
+    if le.eruption <= 0 or not hasattr(bank, "spread"):
+        return None
+    if not any(lesion.meta.get("preset") in ERUPTIVE for lesion in chosen) or rng.random() >= le.eruption:
+        return None
+    n = int(rng.integers(int(le.eruption_lesions[0]), int(le.eruption_lesions[1]) + 1))
+
+    def spread(lesion):
+        if lesion.meta.get("preset") not in ERUPTIVE:
+            return []
+        return [bank.spread(lesion, j) for j in range(1, n + 1)]
+    return spread, float(rng.uniform(*le.eruption_radius))
 
 
 class BlendLesions(_Stage):
@@ -306,7 +325,8 @@ class Generate2DViews(_Stage):
         return texture, instances, placements
 
     def _lesion_points(self, renderer, mesh, instances, placements):
-        """A views.LesionSite per placed lesion: its texels' points, normals and area."""
+        """A views.LesionSite per placed lesion, an eruption's lesions making one: its
+        texels' points, normals and area."""
         if not placements:
             return []
         h, w = instances.shape
@@ -314,12 +334,15 @@ class Generate2DViews(_Stage):
         e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
         uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * (w * h)
         texel_area = mesh.face_areas / np.maximum(uv_area, 1e-30)   # surface per texel, by face
-        sites = []
+        groups = {}         # site key -> (points, normals, area) of its lesions, in order
         for p in placements:  # only each lesion's texel box is rasterised (~10 ms, not 240)
             tx = TexelGeometry.of(renderer, mesh, only=np.isin(instances, p.ids), box=p.texel_box)
             if len(tx.rows):
-                sites.append(V.LesionSite(tx.points, tx.normals, float(texel_area[tx.faces].sum())))
-        return sites
+                g = groups.setdefault(p.lesion_meta.get("eruption", ("alone", p.instance)), ([], [], []))
+                g[0].append(tx.points), g[1].append(tx.normals)
+                g[2].append(float(texel_area[tx.faces].sum()))
+        return [V.LesionSite(np.concatenate(pts), np.concatenate(nrm), sum(area))
+                for pts, nrm, area in groups.values()]
 
     def _one_view(self, renderer, body_id, body, mesh_b, instances, nevi_map, placements,
                   lesion_points, backgrounds, j, rejected):
