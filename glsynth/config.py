@@ -177,11 +177,12 @@ class LesionsConfig:
     decal_size: int = key(1024, "pixels per side of each lesion's decal, drawn over the body "
                           "texture at the lesion's own resolution (0: no decals)",
                           rule=Rule(lambda n: n == 0 or 64 <= n <= 4096, "0 or in [64, 4096]"))
-    eruption: float = key(0.5, "procedural lesions: probability that a body's first lesion of an "
+    eruption: float = key(0.0, "procedural lesions: probability that a body's first lesion of an "
                           "eruptive preset (assets/morphology.ERUPTIVE: psoriasis, eczema, "
                           "urticaria...) spreads as a generalised eruption, further draws of its "
                           "preset placed round it; close-up and regional views treat the eruption "
-                          "as one lesion (0: every lesion alone, as the paper's)", within=between(0, 1))
+                          "as one lesion (0: every lesion alone, as the paper's; at 0.5 generation "
+                          "takes ~1.2x as long, docs/realism.md)", within=between(0, 1))
     eruption_lesions: list = key([2, 6], "further lesions of an eruption (drawn uniformly, both "
                                  "ends included)", pair=between(1, 50),
                                  rule=Rule(lambda q: all(float(x).is_integer() for x in q), "integers"))
