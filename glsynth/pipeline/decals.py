@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from ..camera import Camera
+from ..rows import by_rows
 from ..sampling import sample_bilinear
 
 SLOPE_RANGE = 2.0   # relief slope (dh/dx) stored in the aux channels: 0..255 <-> -2..2
@@ -169,7 +170,7 @@ def _fields_decal(fields, src, uv, original, p, c, a, inst, rows, cols, jac, slo
     from ..assets.morphology import apply_to_skin
     at = np.stack([src[:, 1] + 0.5, src[:, 0] + 0.5], 1)
     base = np.clip(np.rint(_texture_at(original, uv)), 0, 255).astype(np.uint8)
-    c[:, :3] = apply_to_skin(fields, base, at=at)
+    c[:, :3] = by_rows(lambda skin, where: apply_to_skin(fields, skin, at=where), base, at)
     g = lambda img: sample_bilinear(np.asarray(img, np.float32), src[:, 0], src[:, 1],  # noqa: E731
                                     cv2.BORDER_REPLICATE)
     infl = sample_bilinear(fields.influence, src[:, 0], src[:, 1], cv2.BORDER_CONSTANT)
