@@ -5,10 +5,12 @@ cores. The blocks do not depend on the number of threads, so neither do the valu
 from __future__ import annotations
 
 import os
+import threading
 
 import numpy as np
 
 BLOCK_ROWS = 1 << 18
+_THREAD_PREFIX = "glsynth-rows"
 _pool = (None, None)   # (process id, executor): a forked child makes its own
 
 
@@ -20,9 +22,16 @@ def by_rows(fn, *arrays):
     n = len(arrays[0])
     if n <= BLOCK_ROWS or (os.cpu_count() or 1) < 2:
         return fn(*arrays)
+    starts = range(0, n, BLOCK_ROWS)
+
+    def block(k):
+        return fn(*(a[k:k + BLOCK_ROWS] for a in arrays))
+
+    if threading.current_thread().name.startswith(_THREAD_PREFIX):
+        # A call from inside a block runs its blocks inline: waiting on the same pool
+        # from all its threads would deadlock. Same blocks, so the same values.
+        return np.concatenate([block(k) for k in starts])
     if _pool[0] != os.getpid():
         from concurrent.futures import ThreadPoolExecutor
-        _pool = (os.getpid(), ThreadPoolExecutor(min(4, os.cpu_count()), thread_name_prefix="glsynth-rows"))
-    starts = range(0, n, BLOCK_ROWS)
-    parts = _pool[1].map(lambda k: fn(*(a[k:k + BLOCK_ROWS] for a in arrays)), starts)
-    return np.concatenate(list(parts))
+        _pool = (os.getpid(), ThreadPoolExecutor(min(4, os.cpu_count()), thread_name_prefix=_THREAD_PREFIX))
+    return np.concatenate(list(_pool[1].map(block, starts)))

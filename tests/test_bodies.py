@@ -580,6 +580,28 @@ def test_painting_in_blocks_on_threads_gives_the_one_call_values(rng, monkeypatc
         assert ref.any() and np.array_equal(skin._segment_mask(256, labels), ref)
 
 
+
+def test_row_blocks_called_from_inside_a_block_do_not_deadlock():
+    """by_rows called from inside one of its own blocks (as noise inside a condition
+    applied in blocks would be) runs inline instead of waiting on its busy pool, and
+    gives the one-call values. Run in a child process so that a deadlock fails the test
+    by its timeout instead of hanging the suite."""
+    import subprocess
+    import sys
+    code = """
+import numpy as np
+from glsynth import rows
+rows.BLOCK_ROWS = 101
+rows.os.cpu_count = lambda: 4
+x = np.arange(5_000, dtype=float)
+inner = lambda a: rows.by_rows(lambda b: np.sqrt(b), np.repeat(a, 3))[::3] + a
+out = rows.by_rows(inner, x)
+assert np.array_equal(out, np.sqrt(x) + x)
+print("ok")
+"""
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and run.stdout.strip() == "ok", run.stderr
+
 def test_sun_exposed_skin_of_old_bodies_is_more_wrinkled(cache):
     """Photo-ageing: from young to old, the relief level (what brings out the shader's
     criss-cross wrinkles) rises more on the forearms than on the skin of the lower
