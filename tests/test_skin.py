@@ -245,11 +245,13 @@ def _surface_per_hair_coordinate(v, f, hc):
 
 
 def test_terminal_hair_tile_is_as_dense_and_crossed_as_a_hairy_forearm():
-    """Each terminal group of the hair tile: ~14 hairs / cm2, 4-14 mm long (log-uniform,
-    mean 8 mm), ~70 um thick and thinner to the tip, so 4-9% of the tile is covered; the
-    strands leave the flow by ~30 degrees and bend along their length, so their
-    directions spread 25-45 degrees round it (a tile of short hairs combed parallel
-    covered 3% and spread 19). Vellus groups are finer and sparser in cover."""
+    """Each terminal group of the hair tile: ~14 hairs / cm2, 6-22 mm long (log-uniform,
+    mean 12 mm: a shin's and a forearm's), ~70 um thick and thinner to the tip, so 8-14%
+    of the tile is covered (the 4-14 mm hairs before 2026-12-06 covered 4-9%, sparse
+    beside a real hairy shin); the strands leave the flow by ~30 degrees and bend along
+    their length, so their directions spread 25-45 degrees round it (a tile of short
+    hairs combed parallel covered 3% and spread 19). Vellus groups are finer and
+    sparser in cover."""
     import cv2
     tile = detail._hair_tile(seed=0).astype(np.float32) / 255
     for g in range(4):
@@ -260,7 +262,7 @@ def test_terminal_hair_tile_is_as_dense_and_crossed_as_a_hairy_forearm():
         spread = np.degrees(np.sqrt(-2 * np.log(resultant)) / 2)
         cover = (c > 0.3).mean()
         if g < 2:
-            assert 0.04 < cover < 0.09 and 25 < spread < 45, (g, cover, spread)
+            assert 0.08 < cover < 0.14 and 25 < spread < 45, (g, cover, spread)
         else:
             assert 0.005 < cover < 0.03, (g, cover)
 

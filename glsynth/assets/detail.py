@@ -53,8 +53,9 @@ from scipy.spatial import cKDTree
 
 RELIEF_PERIOD = 0.008     # metres covered by one relief tile
 RELIEF_SIZE = 1024        # texels (7.8 um each)
-HAIR_PERIOD = 0.016       # metres covered by one hair tile
-HAIR_SIZE = 2048          # texels (7.8 um each)
+HAIR_PERIOD = 0.024       # metres covered by one hair tile (room for 2 cm hairs)
+HAIR_SIZE = 2048          # texels (11.7 um each: over twice as fine as a close-up's
+                          # finest pixel, 29 um at 1:1 macro in 512 px)
 MACRO_SCALE = 4.37        # the relief tile's second, coarser reading (incommensurate)
 MACRO_WEIGHT = 0.2        # its share at relief level 0.5 (the shader: times (level / 0.5)^2)
 CREASE_PERIOD = 0.024     # metres covered by one crease tile
@@ -236,8 +237,13 @@ def _draw_strands(canvas, rng, n, length_mm, width_um, spread_deg, curl, um, per
     """Tapered, curved strands lying along +x, wrapped around the tile; each strand's
     coverage between 0.6 and 1 (thin and light hairs let some skin through)."""
     size = canvas.shape[0]
-    for _ in range(n):
-        x0, y0 = rng.uniform(0, size, 2)
+    # roots on a jittered grid (follicles keep apart; uniform roots clump, and a tile of
+    # long hairs then varies in cover over its quarters, which a far view's coarse mip
+    # levels show as speckle)
+    m = int(np.ceil(np.sqrt(n)))
+    cells = rng.permutation(m * m)[:n]
+    roots = (np.stack([cells % m, cells // m], 1) + rng.uniform(0, 1, (n, 2))) * (size / m)
+    for x0, y0 in roots:
         length = float(np.exp(rng.uniform(np.log(length_mm[0]), np.log(length_mm[1])))) * 1000 / um
         angle = np.radians(rng.normal(0, spread_deg))
         bend = rng.normal(0, curl)
@@ -263,10 +269,11 @@ def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
     um = period * 1e6 / size
     area_cm2 = (period * 100) ** 2
     groups = []
-    for g in range(2):   # terminal: ~14 hairs / cm2 per group, 4-14 mm long (under the
-        c = np.zeros((size, size), np.uint8)   # tile's period), 50-90 um thick, leaving the
-        # flow by ~30 degrees and bent by up to ~80 along their length, so they cross
-        _draw_strands(c, rng, int(14 * area_cm2), (4.0, 14.0), (50, 90), 30, 0.7, um, size)
+    for g in range(2):   # terminal: ~14 hairs / cm2 per group, 6-22 mm long (a shin's
+        c = np.zeros((size, size), np.uint8)   # and a forearm's, under the tile's period),
+        # 50-90 um thick, leaving the flow by ~30 degrees and bent by up to ~80 along
+        # their length, so they cross
+        _draw_strands(c, rng, int(14 * area_cm2), (6.0, 22.0), (50, 90), 30, 0.7, um, size)
         groups.append(c)
     for g in range(2):   # vellus: ~40 hairs / cm2 per group, 0.6-2.5 mm, 15-30 um
         c = np.zeros((size, size), np.uint8)
