@@ -220,6 +220,10 @@ void main() {
     float footprint = dot(g_depth, b) * u_pixel_angle / max(abs(dot(ng, v)), 0.2);
     // (alpha below 0: scalp hair, its coverage)
     float detail_weight = max(tex.a, 0.0), scalp = max(-tex.a, 0.0), gloss = 0.0;
+    // body hair keeps the surrounding skin's density over a lesion, a little thinned:
+    // hairs rooted around it lie across it (a lesion's own smoothness is no reason for a
+    // hairless patch, which real hairy skin does not show)
+    float hair_weight = min(detail_weight, 1.0);
     vec3 grad = vec3(0.0);         // height gradient of relief and lesions, world units
     vec3 n_shape = ng;             // the surface's shape: its geometry and lesion relief
 #if DECALS
@@ -229,13 +233,15 @@ void main() {
     albedo = mix(albedo, to_linear(dcol.rgb), dcol.a);
     detail_weight = mix(detail_weight, daux.a * DECAL_DETAIL, dcol.a);
     scalp *= 1.0 - dcol.a;
+    hair_weight *= 1.0 - 0.3 * dcol.a;
     gloss = daux.b * dcol.a;
     vec2 dslope = (daux.xy * 255.0 - 128.0) / 127.0 * DECAL_SLOPE * dcol.a;
     grad += dslope.x * dax + dslope.y * day;
     n_shape = bumped(ng, grad);
 #endif
 #if DETAIL
-    vec4 prm = texture(u_params, vec2(uv.x, 1.0 - uv.y)) * min(detail_weight, 1.0);
+    vec4 body_prm = texture(u_params, vec2(uv.x, 1.0 - uv.y));
+    vec4 prm = body_prm * min(detail_weight, 1.0);
     oil = prm.a * u_oil;
     float lod = log2(max(footprint / u_relief_period * u_relief_size, 1e-6));
     // the tile projected along the two world axes nearest the normal (two lookups, not
@@ -318,7 +324,7 @@ void main() {
     // G, A from the other), so that the tile's period does not show
     vec4 hs = textureLod(u_hair, hc / u_hair_period, hlod);
     vec4 hs2 = textureLod(u_hair, hc / (HAIR_RATIO * u_hair_period) + vec2(0.37, 0.61), hlod - log2(HAIR_RATIO));
-    float dens = prm.b;
+    float dens = body_prm.b * hair_weight;
     float tv = clamp(dens * 4.0, 0.0, 1.0);
     float tt = clamp((dens - 0.25) / 0.75, 0.0, 1.0);
     terminal = hs.r * clamp(2.0 * tt, 0.0, 1.0) + hs2.g * clamp(2.0 * tt - 1.0, 0.0, 1.0);

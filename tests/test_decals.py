@@ -13,14 +13,15 @@ from glsynth.lighting import Material, PointLight
 from glsynth.pipeline.decals import Decals, projection_rows
 
 
-def plane_with_decal(rng, d=128, tex=64, ids=None, colour=None, aux=None, region_size=32):
-    """The z = 0 square [-1, 1]^2 (UV = (x + 1) / 2, (y + 1) / 2) with one decal seen from
-    straight above that covers [-0.5, 0.5]^2 with d x d pixels."""
-    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
+def plane_with_decal(rng, d=128, tex=64, ids=None, colour=None, aux=None, region_size=32, scale=1.0):
+    """The z = 0 square [-1, 1]^2 times ``scale`` (UV = (x / scale + 1) / 2, ...) with one
+    decal seen from straight above that covers [-0.5, 0.5]^2 times ``scale`` with d x d
+    pixels."""
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float) * scale
     f = np.array([[0, 1, 2], [0, 2, 3]])
     texture = (rng.random((tex, tex, 3)) * 255).astype(np.uint8)
     half = math.tan(math.radians(30.0) / 2)
-    cam = gs.Camera.look_at((0.0, 0.0, 0.5 / half), (0.0, 0.0, 0.0), up=(0, 1, 0), fov_deg=30.0,
+    cam = gs.Camera.look_at((0.0, 0.0, 0.5 * scale / half), (0.0, 0.0, 0.0), up=(0, 1, 0), fov_deg=30.0,
                             width=d, height=d)
     view = cam.view_matrix()
     region = np.zeros((region_size, region_size), np.uint16)
@@ -38,8 +39,8 @@ def plane_with_decal(rng, d=128, tex=64, ids=None, colour=None, aux=None, region
     if aux is None:
         aux = np.full((d, d, 4), (128, 128, 0, 128), np.uint8)
     decals = Decals(region, projection_rows(cam)[None], np.stack([view[0, :3], -view[1, :3]])[None],
-                    np.array([1.0 / d]), colour[None], aux[None], ids[None])
-    mesh = gs.Mesh(v, f, uvs=(v[:, :2] + 1) / 2, texture=texture, name="decal-plane", decals=decals)
+                    np.array([scale / d]), colour[None], aux[None], ids[None])
+    mesh = gs.Mesh(v, f, uvs=(v[:, :2] / scale + 1) / 2, texture=texture, name="decal-plane", decals=decals)
     return mesh, decals
 
 
@@ -118,6 +119,39 @@ def test_relief_changes_shading_but_not_labels(renderer, rng):
                             material=Material(model="skin", detail=False)) for m in (flat, bumpy)]
     assert (outs[0]["instances"] == outs[1]["instances"]).all()
     assert np.abs(outs[0]["rgb"] - outs[1]["rgb"]).mean() > 2 / 255
+
+
+def test_body_hair_lies_across_a_lesion(gl_backend, rng):
+    """Terminal hairs rooted around a lesion lie across it: over a smooth lesion decal
+    (micro-relief visibility 0.2, a stretched nodule) on hairy skin, hair changes the
+    image at least 0.4 times as much as on the skin around (0.6-0.75; it was 0.02: the lesion's
+    smoothness switched terminal hair off, a hairless patch that real hairy skin does not
+    show). The reference is the same view with hair density 0."""
+    from gl_context import get_renderer
+
+    from glsynth.mesh import SkinSurface
+    renderer = get_renderer(gl_backend, 256, 256)
+    d, scale = 256, rng.uniform(0.015, 0.025)               # a 1.5-2.5 cm lesion
+    colour = np.empty((d, d, 4), np.uint8)
+    colour[:] = (200, 160, 140, 255)                         # the skin's own colour
+    aux = np.full((d, d, 4), (128, 128, 0, round(255 * 0.2 / 2.0)), np.uint8)
+    plane, _ = plane_with_decal(rng, d=d, colour=colour, aux=aux, scale=scale)
+    plane = plane.copy_with(texture=np.full((64, 64, 3), (200, 160, 140), np.uint8))
+    cam = gs.Camera.look_at((0.0, 0.0, 1.2 * scale / math.tan(math.radians(15))), (0.0, 0.0, 0.0),
+                            up=(0, 1, 0), fov_deg=30.0, width=256, height=256)
+    light = [PointLight(np.asarray(cam.eye) + scale * np.array([0.5, 0.8, 0.5]), ambient=0.2, diffuse=0.9)]
+    hair_st = plane.vertices[plane.faces][..., :2].astype(np.float32)
+    imgs = []
+    for density in (255, 0):
+        prm = np.zeros((16, 16, 4), np.uint8)
+        prm[:] = (140, 80, density, 80)
+        mesh = plane.copy_with(skin=SkinSurface(prm, None, hair_st, (50, 35, 28), hair_curl=0.0))
+        imgs.append(renderer.render(mesh, cam, passes=("rgb",), lights=light,
+                                    material=Material(model="skin", detail=True))["rgb"])
+    change = np.abs(imgs[0] - imgs[1]).mean(-1)
+    r = np.abs(np.mgrid[0:256, 0:256] + 0.5 - 128).max(0) / 128 * 1.2 * scale   # |x|, |y| max
+    inside, around = change[r < 0.4 * scale].mean(), change[(r > 0.6 * scale) & (r < scale)].mean()
+    assert around > 0.02 and inside > 0.4 * around, (inside, around)
 
 
 def test_condition_decal_hides_the_texture_copy_of_its_outline(rng):
