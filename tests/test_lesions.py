@@ -1276,15 +1276,17 @@ def test_acne_mixes_inflamed_lesions_with_unlabelled_comedones(rng):
     from glsynth.assets.morphology import apply_to_skin, make_condition
     counts = {"papules": 0, "pustules": 0, "nodules": 0}
     for seed in rng.integers(2 ** 31, size=8):
-        f = make_condition("acne", [int(seed)], size=256)
+        # 512 cells, the default resolution: on 256 an 11 cm field's cells (0.43 mm) can
+        # fall between all its open comedones (0.24-0.6 mm across)
+        f = make_condition("acne", [int(seed)], size=512)
         for k in counts:
             counts[k] += f.params[k]
-        away = ~ndimage.binary_dilation(f.mask, iterations=3)
+        away = ~ndimage.binary_dilation(f.mask, iterations=6)
         if f.params["comedones"] >= 10:
             assert np.count_nonzero(away & (f.f["melanin_add"] > 0.1)) > 0, f.params
         head, red = f.f["scale"] > 0.3, f.mask & (f.f["scale"] < 0.02) & (f.f["melanin_add"] < 0.01)
         if head.sum() > 10:
-            lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 256, np.random.default_rng(int(seed)))))
+            lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 512, np.random.default_rng(int(seed)))))
             (l_h, a_h, b_h), (l_r, a_r, _) = np.median(lab[head], 0), np.median(lab[red], 0)
             assert l_h > l_r + 5 and a_h < a_r - 5 and b_h > 10, (np.median(lab[head], 0), np.median(lab[red], 0))
     assert min(counts.values()) > 0, counts
