@@ -580,7 +580,6 @@ def test_painting_in_blocks_on_threads_gives_the_one_call_values(rng, monkeypatc
         assert ref.any() and np.array_equal(skin._segment_mask(256, labels), ref)
 
 
-
 def test_row_blocks_called_from_inside_a_block_do_not_deadlock():
     """by_rows called from inside one of its own blocks (as noise inside a condition
     applied in blocks would be) runs inline instead of waiting on its busy pool, and
@@ -601,6 +600,7 @@ print("ok")
 """
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0 and run.stdout.strip() == "ok", run.stderr
+
 
 def test_sun_exposed_skin_of_old_bodies_is_more_wrinkled(cache):
     """Photo-ageing: from young to old, the relief level (what brings out the shader's
