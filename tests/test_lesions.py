@@ -1313,21 +1313,28 @@ def test_pigmented_patch_is_light_brown_on_fair_and_dark_skin(rng):
         assert 3 < min(d) and max(d) < 24 and 6 < np.median(d) < {2: 16, 5: 19}[fitz], (fitz, np.round(d, 1))
 
 
-def test_inflammatory_patches_can_hold_unlabelled_islands_of_spared_skin(rng):
+def test_inflammatory_patches_can_hold_unlabelled_islands_of_spared_skin(rng, monkeypatch):
     """Patch-stage mycosis fungoides and other eruptions leave islands of normal skin in
-    a large patch; the outline leaves them out and they carry none of its redness."""
-    from glsynth.assets.morphology import make_condition
+    a large patch; the outline leaves them out and they carry none of the redness of any
+    of the patches. (Other holes are allowed some: a bay closed off between overlapping
+    ill-defined patches keeps their fading edges' redness.)"""
+    from glsynth.assets import morphology
+    placed = []
+    spare = morphology._spared_islands
+    monkeypatch.setattr(morphology, "_spared_islands", lambda *a: placed.append(spare(*a)) or placed[-1])
     seen = 0
     for seed in rng.integers(2 ** 31, size=60):
-        f = make_condition("inflammatory_patch", [int(seed)], size=192)
+        placed.clear()
+        f = morphology.make_condition("inflammatory_patch", [int(seed)], size=192)
         if not f.params["islands"]:
             continue
-        holes = ndimage.binary_fill_holes(f.mask) & ~f.mask
-        if holes.sum() < 10:     # an island that reached the patch's edge is a notch
+        islands = ndimage.binary_fill_holes(f.mask) & (placed[-1] > 0.7)   # the draw kept
+        if islands.sum() < 10:   # an island that reached the patch's edge is a notch
             continue
         seen += 1
+        assert not f.mask[islands].any()
         blood = f.f["blood_add"]
-        assert np.median(blood[holes]) < 0.3 * np.median(blood[f.mask]), seen
+        assert np.median(blood[islands]) < 0.3 * np.median(blood[f.mask]), seen
         if seen == 3:
             break
     assert seen >= 2

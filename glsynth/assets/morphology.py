@@ -1172,12 +1172,14 @@ def _inflammatory_patch(b, rng, R):
     border = str(rng.choice(["ill-defined", "sharp"], p=[0.6, 0.4]))
     oxygen = rng.uniform(0.55, 0.85)
     islands = int(rng.integers(1, 5)) if rng.random() < 0.3 else 0
+    spared = 0.0
     for i, p in enumerate(arrange(c, "grouped", n, R * 0.6, R * 0.3)):
         r = R * (rng.uniform(0.55, 0.9) if i == 0 else rng.uniform(0.25, 0.5))
         sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.5, 1.0), irregular=0.4, warp=0.25)
         w = b.weight(sd, r * 0.3, border)
-        if i == 0 and islands:
-            w *= 1 - _spared_islands(b, rng, sd, r, islands)
+        if i == 0 and islands:       # islands sit in the main patch and are spared by all of them
+            spared = _spared_islands(b, rng, sd, r, islands)
+        w *= 1 - spared
         inside = 0.65 + 0.35 * smoothstep(-1.0, 1.0, c.noise(r / 3, 3))    # uneven redness
         b.erythema(w * inside, rng.uniform(1.2, 3.0), oxygen=oxygen)
         b.f["melanin"] *= 1 + rng.uniform(0.0, 0.6) * w
