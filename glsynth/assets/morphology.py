@@ -1415,8 +1415,11 @@ def _granuloma_annulare(b, rng, R):
     u, v = radius * np.cos(t), aspect * radius * np.sin(t)
     centres = np.stack([u * np.cos(turn) - v * np.sin(turn), u * np.sin(turn) + v * np.cos(turn)], 1)
     radii = width / 2 * rng.uniform(0.55, 1.2, n)
-    keep = rng.random(n) > 0.12                  # a papule or two missing: gaps in the ring
+    # a papule missing here and there: gaps in the ring, never two side by side (a gap
+    # wider than the centre's closing bridges left an open arc, its centre unoutlined)
+    keep = rng.random(n) > 0.12
     keep[0] = True
+    keep |= ~np.roll(keep, 1)
     centres, radii = centres[keep], radii[keep]
     sd, which = spots(c, centres, radii, irregular=0.1)
     s = np.clip(sd / radii[np.maximum(which, 0)], 0.0, 1.0)
