@@ -943,6 +943,29 @@ def test_discoid_lupus_has_a_scaly_dark_rim_around_a_pale_scar_with_plugs(rng):
     assert 0 < in_scar < 0.2 * expected, (in_scar, expected)
 
 
+def test_discoid_lupus_scars_burn_out_pale(rng):
+    """An active discoid lupus lesion's centre stays red; an old one's is a fibrosed,
+    ivory to pink-white scar with little blood. Over 16 draws on type II skin, the four
+    most scarred centres are redder than the skin around them by less than the four
+    least scarred (by 3.7-8.7 a* over 30 sets of draws), and are about as light as it
+    (mean L* difference -0.8 to +4.4; the least scarred -9.3 to -2.7)."""
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin, make_condition
+    rows = []
+    for seed in rng.integers(2 ** 31, size=16):
+        f = make_condition("lupus", [int(seed)], size=160)
+        d = ndimage.distance_transform_edt(f.mask)
+        centre = d > 0.75 * d.max()
+        around = ndimage.binary_dilation(f.mask, iterations=8) & ~ndimage.binary_dilation(f.mask, iterations=3)
+        lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 160, np.random.default_rng(int(seed)))))
+        rows.append((f.params["scarred"], np.median(lab[centre][:, 1]) - np.median(lab[around][:, 1]),
+                     np.median(lab[centre][:, 0]) - np.median(lab[around][:, 0])))
+    rows = np.array(sorted(rows))
+    active, burnt = rows[:4], rows[-4:]
+    assert active[:, 1].mean() - burnt[:, 1].mean() > 2.5, np.round(rows, 2)
+    assert burnt[:, 2].mean() > -3 and active[:, 2].mean() < burnt[:, 2].mean(), np.round(rows, 2)
+
+
 def test_vessel_trees_fork_and_taper_and_cover_their_drawn_area(rng):
     """An unbranched vessel covers w L (plus its round ends), also where it is narrower
     than a cell (drawn fainter), and is its full width from its start. A tree of depth d

@@ -922,7 +922,11 @@ def _lupus(b, rng, R):
     w = b.weight(sd, R * 0.2, "ill-defined")
     centre = smoothstep(0, R * rng.uniform(0.4, 0.7), sd)
     rim = w * (1 - centre)
-    b.erythema(w * (0.6 + 0.4 * (1 - centre)), rng.uniform(2.0, 3.5), oxygen=rng.uniform(0.55, 0.7))
+    # how burnt out the centre is: in an active lesion it stays red; an old one's scar is
+    # fibrosed (dense collagen scatters: ivory to porcelain white) with little blood left
+    scarred = rng.uniform(0.0, 1.0)
+    b.erythema(w * (1 - centre * (0.4 + 0.45 * scarred)), rng.uniform(2.0, 3.5), oxygen=rng.uniform(0.55, 0.7))
+    b.mix("scatter", w * centre, 1 + 0.35 * scarred)
     b.mix("melanin", rim, rng.uniform(1.5, 2.2))                         # hyperpigmented rim
     # pigment left in the scar: islands, never most of it (a plain noise threshold could
     # cover a small centre whole), so the threshold is the noise's 60th centile there
@@ -948,7 +952,7 @@ def _lupus(b, rng, R):
         b.f["scale"] = np.maximum(b.f["scale"], 0.6 * dots)
         b.f["height"] += 0.05 * dots
     b.outline(w, 0.35)
-    return {"follicular_plugs": len(plugs)}
+    return {"follicular_plugs": len(plugs), "scarred": round(float(scarred), 3)}
 
 
 def _pyogenic_granuloma(b, rng, R):
