@@ -370,7 +370,10 @@ def _hair_lock(rng, shape, mm_per_px, light, up, reach, hair_rgb, coily, long_ha
                           0.6 * standoff, 0.45)
     outline = inside >= 0
     meta = {"colour": [int(c) for c in hair_rgb], "strands": int(n), "curl_mm": float(curl_mm),
-            "length_mm": float(length_px * mm_per_px), "lock_mm": float(clump_px * mm_per_px)}
+            "length_mm": float(length_px * mm_per_px), "lock_mm": float(clump_px * mm_per_px),
+            # the root line the lock's depth is counted from: through root_px (on the
+            # frame's edge), across inward (image x right, y down)
+            "root_px": [round(float(v), 2) for v in origin], "inward": [round(float(v), 4) for v in inward]}
     return box, np.clip(rgb, 0, 1).astype(np.float32), alpha, shadow, outline, meta
 
 
