@@ -612,12 +612,30 @@ def test_vascular_lesions_are_deep_red(preset, min_a):
         assert a > min_a and L < 50, (seed, np.median(lab[core], 0))
 
 
+def test_ulcer_slough_ranges_from_yellow_to_grey_white_fibrin(rng):
+    """Slough is yellow to tan in some ulcers, the grey-white of wet fibrin in others
+    (sheets of it over a pyoderma's or a venous ulcer's bed): each ulcer's slough colour
+    lies between the two, greyer the more fibrinous, and always light."""
+    from glsynth.assets.morphology import CRUST_COLOURS, FIBRIN_GREY, make_condition
+    lab = lambda rgb: srgb_to_lab(np.array([[rgb]], np.uint8))[0, 0]         # noqa: E731
+    chroma = lambda rgb: float(np.hypot(*lab(rgb)[1:]))                       # noqa: E731
+    assert chroma(FIBRIN_GREY) < 6 < 25 < chroma(CRUST_COLOURS["slough"])
+    rows = []
+    for seed in rng.integers(2 ** 31, size=8):
+        f = make_condition("ulcer", [int(seed)], size=96)
+        rows.append((f.params["fibrinous"], chroma(f.crust_rgb), lab(f.crust_rgb)[0]))
+    rows = np.array(sorted(rows))
+    assert (np.diff(rows[:, 1]) <= 0.5).all() and (rows[:, 2] > 75).all(), np.round(rows, 2)
+
+
 def test_ulcer_floor_lies_below_the_skin_under_pale_slough(rng):
     """An ulcer's floor lies below the skin round it (its granules and slough never lift
     it above), deepest for pyoderma gangrenosum and pressure ulcers; its slough is pale
-    yellow-white, far lighter and less red than the granulating bed it lies on (where
-    no film of fibrin covers it); all
-    three kinds occur."""
+    yellow-white to grey-white, far lighter and less red than the granulating bed it
+    lies on (where no film of fibrin covers it): yellow slough has b* above a*, the
+    grey-white of wet fibrin may take a pink tinge from the bed (b* down to a* - 8;
+    -4.9 at worst over 77 draws), never more red than a* 18 (14.3); all three kinds
+    occur."""
     from glsynth.assets.lesions import reference_skin
     from glsynth.assets.morphology import apply_to_skin, make_condition
     depth = {}
@@ -633,7 +651,8 @@ def test_ulcer_floor_lies_below_the_skin_under_pale_slough(rng):
         if slough.sum() > 20:
             lab = srgb_to_lab(apply_to_skin(f, reference_skin(2, 96, np.random.default_rng(int(seed)))))
             (l_s, a_s, b_s), (l_b, a_b, _) = np.median(lab[slough], 0), np.median(lab[bed], 0)
-            assert l_s > l_b + 6 and a_s < a_b - 15 and b_s > a_s, (seed, lab[slough].mean(0))
+            tinge = 8 if f.params["fibrinous"] > 0.5 else 0
+            assert l_s > l_b + 6 and a_s < min(a_b - 15, 18) and b_s > a_s - tinge, (seed, lab[slough].mean(0))
     assert set(depth) == {"venous", "pressure", "pyoderma"}, depth
     assert np.median(depth["venous"]) < min(np.median(depth["pressure"]), np.median(depth["pyoderma"]))
 

@@ -52,6 +52,7 @@ SCALE_COLOURS = {"white": (236, 232, 226), "silvery": (214, 218, 222), "greasy":
 CRUST_COLOURS = {"honey": (196, 140, 58), "haemorrhagic": (88, 28, 24), "serous": (170, 120, 70),
                  "slough": (214, 196, 138)}
 OLD_CRUST = np.array([72, 36, 26]) / 255.0
+FIBRIN_GREY = (206, 204, 194)      # wet fibrinous slough: grey-white, no yellow
 # blood volume fraction added where the epidermis is gone (Builder.erode): about that of
 # a florid erythema (Builder.erythema amount 2.5)
 ERODED_BLOOD = 0.25
@@ -907,7 +908,12 @@ def _ulcer(b, rng, R):
         eschar = smoothstep(0.8, 1.8, c.noise(R / 2, 2)) * on_floor
         b.crust(eschar, 1.0, "haemorrhagic")
     b.outline(np.maximum(bed, 0.45 * w_peri), 0.4)
-    return {"kind": kind, "crust_rgb": CRUST_COLOURS["slough"], "scale_rgb": SCALE_COLOURS["fibrin"]}
+    # slough from yellow to the grey-white of wet fibrin, which covers a bed in sheets
+    fibrinous = rng.uniform(0.0, 1.0)
+    slough_rgb = np.rint(np.array(CRUST_COLOURS["slough"]) + fibrinous * (np.array(FIBRIN_GREY)
+                                                                          - CRUST_COLOURS["slough"]))
+    return {"kind": kind, "crust_rgb": tuple(int(v) for v in slough_rgb), "scale_rgb": SCALE_COLOURS["fibrin"],
+            "fibrinous": round(float(fibrinous), 3)}
 
 
 def _lupus(b, rng, R):
