@@ -318,6 +318,9 @@ class ViewsConfig:
     oil: list = key([0.1, 0.7], "skin: scales the body's oiliness map", pair=between(0, 1))
     relief: list = key([0.7, 1.3], "skin: scales the micro-relief", pair=between(0, 10))
     detail: bool = key(True, "skin: micro-relief and hair")
+    occlusion: bool = key(True, "skin: ambient occlusion baked per body (folds, the armpit, ears "
+                          "and between the fingers get less of the room's ambient light; cached "
+                          "on disk, ~0.8 s per body the first time)")
     framing: dict = key({"closeup": 0.7, "regional": 0.25, "wild": 0.05},
                         "weights of the view kinds (pipeline/views.py): closeup (a lesion filling "
                         "closeup_fraction of the frame), regional (a body part fills the frame), "

@@ -49,12 +49,14 @@ class Mesh:
     """vertices (V,3) float, faces (F,3) int, uvs (T,2) float, face_uvs (F,3) int,
     texture HxWx3 uint8 (row 0 = top of the image, v = 1 at the top), plus optional
     named extra textures (label maps) in ``textures``, the skin shading's inputs in
-    ``skin`` (a SkinSurface) and lesion decals in ``decals``.
+    ``skin`` (a SkinSurface), lesion decals in ``decals`` and ``occlusion`` (V,): the
+    share of the room's ambient light reaching each vertex (glsynth.gl.occlusion;
+    None: all of it), which the skin shading applies.
     """
 
     def __init__(self, vertices, faces, uvs=None, face_uvs=None, texture=None,
                  textures=None, vertex_labels=None, vertex_colors=None, name="mesh",
-                 require_texture=True, skin=None, decals=None):
+                 require_texture=True, skin=None, decals=None, occlusion=None):
         self.name = str(name)
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces)
@@ -104,6 +106,18 @@ class Mesh:
                 np.shape(skin.hair_coords) != (len(self.faces), 3, 2):
             raise MeshError(f"{self.name}: hair_coords must be ({len(self.faces)}, 3, 2), "
                             f"got {np.shape(skin.hair_coords)}")
+        self.occlusion = None
+        if occlusion is not None:
+            occ = np.asarray(occlusion, dtype=np.float32)
+            if occ.shape != (len(v),):
+                raise MeshError(f"{self.name}: occlusion must be one value per vertex ({len(v)},), "
+                                f"got shape {occ.shape}")
+            finite = np.isfinite(occ)
+            if not (finite.all() and occ.min() >= 0 and occ.max() <= 1):
+                span = f"[{occ[finite].min()}, {occ[finite].max()}]" if finite.any() else "none finite"
+                raise MeshError(f"{self.name}: occlusion values must be finite and in [0, 1], got "
+                                f"{span}, {int((~finite).sum())} NaN or inf")
+            self.occlusion = occ
         self.vertex_labels = None if vertex_labels is None else np.asarray(vertex_labels)
         self.vertex_colors = None if vertex_colors is None else np.asarray(vertex_colors)
         if self.vertex_labels is not None and len(self.vertex_labels) != len(v):
@@ -213,7 +227,7 @@ class Mesh:
         args = dict(vertices=self.vertices, faces=self.faces, uvs=self.uvs,
                     face_uvs=self.face_uvs, texture=self.texture, textures=self.textures,
                     vertex_labels=self.vertex_labels, vertex_colors=self.vertex_colors,
-                    name=self.name, skin=self.skin, decals=self.decals)
+                    name=self.name, skin=self.skin, decals=self.decals, occlusion=self.occlusion)
         args.update(changes)
         return Mesh(**args)
 

@@ -48,6 +48,10 @@ in vec3 in_ht;
 flat out mat3x2 g_hair;   // hair-flow coordinates of the corners (skin.frag)
 flat out vec3 g_hair_t;   // the surface a unit of t covers at the corners
 #endif
+#ifdef OCCLUSION
+in vec3 in_ao;
+flat out vec3 g_ao;       // ambient occlusion at the corners (Mesh.occlusion; skin.frag)
+#endif
 
 // Sets every output but gl_Position and g_depth; returns this corner's UV.
 vec2 emit_face() {
@@ -60,6 +64,9 @@ vec2 emit_face() {
 #ifdef HAIR_COORDS
     g_hair = mat3x2(in_h0, in_h1, in_h2);
     g_hair_t = in_ht;
+#endif
+#ifdef OCCLUSION
+    g_ao = in_ao;
 #endif
     return g_uv[k];
 }

@@ -8,7 +8,9 @@
 //   relief (decals: domes, ulcer walls, scale) is millimetres to centimetres across and
 //   shades every channel alike, as the surface's own shape does;
 // * specular: one GGX lobe with Smith masking and Schlick's Fresnel (F0 0.028, skin's
-//   refractive index 1.4); sebum (the per-body oiliness map) sharpens and raises it.
+//   refractive index 1.4); sebum (the per-body oiliness map) sharpens and raises it;
+// * ambient: the room's, times the share of it the body lets reach the point (per-vertex
+//   ambient occlusion, glsynth.gl.occlusion; 1 for meshes without).
 // With DETAIL, micro-detail that no body texture could hold (glsynth.assets.detail):
 // the relief tile projected from the world position along the two axes nearest the
 // normal, at two scales (furrows and pores as a normal perturbation and cavity
@@ -52,6 +54,7 @@ uniform float u_roughness;         // GGX roughness of dry skin (alpha = roughne
 uniform float u_oil;               // 0..1, scales the oiliness map
 uniform float u_wrap;              // Material.wrap
 uniform float u_pixel_angle;       // footprint of a pixel per unit of depth
+flat in vec3 g_ao;                 // ambient occlusion at the face's corners
 #if DETAIL
 uniform sampler2D u_params;        // R relief, G pores, B hair density, A oiliness
 uniform sampler2D u_relief;        // relief tile (half floats): RG slope, B albedo change, A pore
@@ -206,6 +209,7 @@ void main() {
     vec2 uv = g_uv * b;
     vec3 world = g_world * b;
     vec3 normal = g_normal * b;
+    float occlusion = dot(g_ao, b);
     float nlen = length(normal);
     vec3 ng = nlen > 0.0 ? normal / nlen : vec3(0.0);
     vec4 tex = texture(u_texture, vec2(uv.x, 1.0 - uv.y));
@@ -410,7 +414,7 @@ void main() {
         vec3 diffuse = max((nl + wrap) / (1.0 + wrap), 0.0);
         float shade = i == 0 ? 1.0 - 0.6 * clamp(hair_shadow, 0.0, 1.0) : 1.0;
         // (the surface's own normal: skin and hair alike, relief does not shade it)
-        vec3 ambient = u_light_ambient[i] * ambient_gain(ng.y, u_light_ground[i]);
+        vec3 ambient = u_light_ambient[i] * ambient_gain(ng.y, u_light_ground[i]) * occlusion;
         light_sum += ambient + vis * shade * u_light_diffuse[i] * diffuse;
         if (nl_detail > 0.0) {
             vec3 h = (l + v) / max(length(l + v), 1e-20);

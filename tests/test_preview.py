@@ -126,7 +126,11 @@ def reference(body, cam, lights=None, material=None, mesh=None):
     lights = lights or [PointLight(cam.eye, ambient=0.5, diffuse=0.5, specular=0.025)]
     material = material or Material(specular=0.025, shininess=50, model=VIEWS.shading,
                                     detail=VIEWS.detail)
-    out = r.render(mesh or body.mesh, cam, passes=("rgb",), lights=lights, material=material,
+    mesh = mesh or body.mesh
+    if VIEWS.occlusion:  # the body's ambient occlusion, as generate and the previewer shade it
+        from glsynth.gl.occlusion import cached_occlusion
+        mesh = mesh.copy_with(occlusion=cached_occlusion(r, mesh))
+    out = r.render(mesh, cam, passes=("rgb",), lights=lights, material=material,
                    supersample=VIEWS.supersample, multisample=VIEWS.multisample,
                    shadows=VIEWS.shadows, buffers=("rgba8",))
     return out["rgba8"][..., :3] / 255

@@ -21,9 +21,12 @@ def _skin_material(rng, **kw):
                     oil=rng.uniform(0, 1), **kw)
 
 
-@pytest.mark.parametrize("trial", range(4))
+@pytest.mark.parametrize("trial", range(6))
 def test_torch_skin_reflectance_matches_gl(renderer, rng, trial):
+    """The last two trials carry random per-vertex ambient occlusion."""
     mesh, tex, cam = textured_view(renderer, rng, sphere if trial % 2 == 0 else box, max_texture=200)
+    if trial >= 4:
+        mesh = mesh.copy_with(occlusion=rng.uniform(0, 1, len(mesh.vertices)))
     lights = []
     for _ in range(int(rng.integers(1, 3))):
         p = np.asarray(cam.eye) + rng.normal(scale=0.3, size=3)

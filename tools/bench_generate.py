@@ -104,6 +104,7 @@ FEATURES = (
     ("clinical framing (-> in-the-wild only)", ["views.framing={wild: 1.0}"]),
     ("flash", ["views.flash=0", "views.closeup_flash=0"]),
     ("soft shadows", ["views.shadows=false"]),
+    ("ambient occlusion (cached after a body's first bake)", ["views.occlusion=false"]),
     ("4x MSAA", ["views.multisample=0"]),
     ("camera model", ["photo.enabled=false"]),
     ("clinical backdrops (-> rooms)", ["backgrounds.clinical=0"]),

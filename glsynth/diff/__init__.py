@@ -134,7 +134,7 @@ F0_SKIN = 0.028   # Fresnel reflectance of skin at normal incidence (refractive 
 WRAP_RGB = (1.0, 0.6, 0.45)   # how far each channel's diffuse wraps, relative to Material.wrap
 
 
-def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=None):
+def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=None, occlusion=None):
     """The skin reflectance of ``shaders/skin.frag`` without micro-detail, in linear
     light: ``colour = albedo * light + specular`` (then sRGB-encoded by the caller).
     Diffuse: wrap lighting, wider in red than in blue; specular: GGX with Smith masking
@@ -143,7 +143,8 @@ def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=No
     (B, H, W, 1) sharpens and raises the specular lobe (decals of moist lesions).
     ``normal`` may carry a lesion's relief, which shades every channel alike (the
     shader softens only the sub-millimetre micro-relief, which this path has not);
-    ``geometric``, the surface's own normal, then sets the ambient light's gain."""
+    ``geometric``, the surface's own normal, then sets the ambient light's gain;
+    ``occlusion`` (B, H, W, 1), the share of ambient light reaching the point, scales it."""
     dt, dev = position.dtype, position.device
     n = F.normalize(normal, dim=-1, eps=1e-30)
     v = F.normalize(eye[:, None, None, :] - position, dim=-1, eps=1e-20)
@@ -158,6 +159,7 @@ def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=No
     light_sum = torch.zeros_like(position)
     spec_sum = torch.zeros_like(position)
     ng = n if geometric is None else F.normalize(geometric, dim=-1, eps=1e-30)
+    occlusion = 1.0 if occlusion is None else occlusion
     for light in lights:
         lp = torch.tensor(light.position, dtype=dt, device=dev)
         to_light = lp - position
@@ -166,7 +168,7 @@ def skin_terms(position, normal, eye, lights, material, gloss=None, geometric=No
         diffuse = ((nl + wrap) / (1 + wrap)).clamp(min=0)
         e = torch.tensor(light.diffuse, dtype=dt, device=dev) * direct_gain(to_light, light)
         light_sum = light_sum + torch.tensor(light.ambient, dtype=dt, device=dev) \
-            * ambient_gain(ng[..., 1:2], light.ambient_ground) + e * diffuse
+            * ambient_gain(ng[..., 1:2], light.ambient_ground) * occlusion + e * diffuse
         h = F.normalize(l + v, dim=-1, eps=1e-20)
         nh = (n * h).sum(-1, keepdim=True).clamp(min=0)
         d = nh * nh * (a2 - 1) + 1
@@ -208,9 +210,14 @@ def shade(outs, mesh, tex, cameras, lights=None, material=None):
         eye = torch.tensor(np.array([c.eye for c in cams]), device=pos.device, dtype=pos.dtype)
         lights = check_lights(lights) if lights is not None else None
         gloss = None if aux is None else aux[..., 2:3] * alpha
+        occ = None
+        if mesh.occlusion is not None:
+            occ = interpolate(torch.as_tensor(mesh.occlusion, device=pos.device, dtype=pos.dtype)[:, None],
+                              torch.as_tensor(mesh.faces, device=pos.device), gbuf)
         terms = [skin_terms(pos[i:i + 1], nrm[i:i + 1], eye[i:i + 1], lights or [PointLight(c.eye)],
                             material, None if gloss is None else gloss[i:i + 1],
-                            None if geometric is None else geometric[i:i + 1])
+                            None if geometric is None else geometric[i:i + 1],
+                            None if occ is None else occ[i:i + 1])
                  for i, c in enumerate(cams)]
         light, spec = torch.cat([t[0] for t in terms]), torch.cat([t[1] for t in terms])
         albedo = srgb_to_linear(texel)

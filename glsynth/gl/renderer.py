@@ -254,6 +254,10 @@ class _MeshOnGPU:
             self.texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self.texture.repeat_x = self.texture.repeat_y = False  # clamp, like grid_sample 'border'
         self.hair_vbo = ctx.buffer(staged["hair"]) if staged.get("hair") else None
+        # ambient occlusion at each face's corners (1: none), uploaded when a program needs it
+        self._face_occlusion = (np.ones((len(mesh.faces), 3), np.float32) if mesh.occlusion is None
+                                else mesh.occlusion[mesh.faces])
+        self.occlusion_vbo = None
         self.decals = _upload_decals(ctx, mesh.decals) if getattr(mesh, "decals", None) is not None else None
         self.decal_size = float(mesh.decals.size) if self.decals is not None else 0.0
         self.params = None
@@ -274,6 +278,10 @@ class _MeshOnGPU:
                 scale = "in_ht" in prog
                 buffers.append((self.hair_vbo, "2f 2f 2f " + ("3f" if scale else "3x4"),
                                 "in_h0", "in_h1", "in_h2", *(("in_ht",) if scale else ())))
+            if "in_ao" in prog:  # every corner carries its face's three values
+                if self.occlusion_vbo is None:
+                    self.occlusion_vbo = self.ctx.buffer(np.repeat(self._face_occlusion, 3, axis=0).tobytes())
+                buffers.append((self.occlusion_vbo, "3f", "in_ao"))
             vao = self.vaos[name] = self.ctx.vertex_array(prog, buffers)
         return vao
 
@@ -319,7 +327,7 @@ class _MeshOnGPU:
         for vao in self.vaos.values():
             vao.release()
         self.vbo.release()
-        for obj in (self.texture, self.hair_vbo, self.params, *(self.decals or {}).values()):
+        for obj in (self.texture, self.hair_vbo, self.occlusion_vbo, self.params, *(self.decals or {}).values()):
             if obj is not None:
                 obj.release()
 
@@ -412,7 +420,7 @@ class Renderer:
                                 DETAIL=detail, HAIR=hair, DECALS=decals,
                                 FALLOFF_NEAREST=float(FALLOFF_NEAREST))
             vert = shader_source("mesh.vert")
-            vert = with_defines(vert, SHADOWS=shadows, **({"HAIR_COORDS": 1} if hair else {}))
+            vert = with_defines(vert, SHADOWS=shadows, OCCLUSION=1, **({"HAIR_COORDS": 1} if hair else {}))
             prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
             _set_units(prog, {"u_shadow_map": 1, "u_params": SKIN_UNITS[0], "u_relief": SKIN_UNITS[1],
                               "u_hair": SKIN_UNITS[2], "u_crease": SKIN_UNITS[3], "u_meso": SKIN_UNITS[4],

@@ -294,9 +294,17 @@ class Generate2DViews(_Stage):
         textured, instances, placements = self._textures(body_id, body)
         from .decals import Decals
         decals = Decals.load(self.body_dir(body_id)) if placements else None
-        mesh_b = body.mesh.copy_with(texture=textured, decals=decals)
+        occlusion = None
+        if self._wants_occlusion():
+            from ..gl.occlusion import stored_occlusion
+            occlusion = stored_occlusion(body.mesh)
+        mesh_b = body.mesh.copy_with(texture=textured, decals=decals, occlusion=occlusion)
         self.renderer.stage(mesh_b)
         return body, mesh_b, instances, placements
+
+    def _wants_occlusion(self):
+        v = self.cfg.views
+        return v.occlusion and v.shading == "skin" and "rgb" in self.cfg.outputs
 
     def _body_state(self, body_id):
         """Everything views of one body share; the last body's is kept."""
@@ -306,6 +314,9 @@ class Generate2DViews(_Stage):
         t0 = time.perf_counter()
         body, mesh_b, instances, placements = self._ahead.get(("body", body_id), self._body_from_disk,
                                                               body_id)
+        if self._wants_occlusion() and mesh_b.occlusion is None:  # not baked yet: GL, so here
+            from ..gl.occlusion import cached_occlusion
+            mesh_b = mesh_b.copy_with(occlusion=cached_occlusion(self.renderer, body.mesh))
         # the textured mesh: it goes to the GPU for the views anyway (one upload)
         lesion_points = self._lesion_points(self.renderer, mesh_b, instances, placements)
         state = (body, mesh_b, instances, V.nevi_label_map(body), placements, lesion_points,

@@ -51,6 +51,10 @@ class Viewer:
         self.size = (int(fw), int(fh))
         self.renderer = Renderer(*self.size, backend="window")
         self.ctx = self.renderer.ctx
+        if scene.views.occlusion and scene.mesh.occlusion is None:  # as generate shades skin
+            from ..gl.occlusion import cached_occlusion
+            scene = self.scene = dataclasses.replace(
+                scene, mesh=scene.mesh.copy_with(occlusion=cached_occlusion(self.renderer, scene.mesh)))
         self._display = None          # (texture, framebuffer) for numpy images
         self._cache = {}              # what: (key, result) of the last render
         self.camera = (camera.with_size(*self.size) if camera is not None
