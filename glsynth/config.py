@@ -260,7 +260,7 @@ class ViewsConfig:
                           within=between(0, 1))
     min_lesion: float = key(0.0, "views showing a smaller share of lesion are rejected",
                             within=between(0, 1))
-    ambient: list = key([0.03, 0.3], "room light: ambient intensity (light from the room's walls and "
+    ambient: list = key([0.02, 0.12], "room light: ambient intensity (light from the room's walls and "
                         "ceiling; low enough that skin turning away from the lamp falls into "
                         "deep shade, as in clinical photographs)", pair=_LIGHT)
     ambient_ground: list = key([0.25, 0.7], "room light: ambient reaching a surface facing the floor, "
@@ -283,7 +283,8 @@ class ViewsConfig:
     light_offset: list = key([0.0, 0.5], "near_camera, paper: light distance from the camera (m)",
                              pair=between(0, 1e3))
     attempts: int = key(50, "scenes tried per view before it is skipped", within=at_least(1))
-    wrap: list = key([0.0, 0.4], "wrap diffuse lighting (skin-like light bleeding; 0: Lambert)",
+    wrap: list = key([0.0, 0.1], "wrap diffuse lighting (skin-like light bleeding past the terminator; "
+                     "millimetres of scattering soften a nose's, hardly a limb's; 0: Lambert)",
                      pair=between(0, 1))
     flash: float = key(0.3, "probability of a phone flash at the camera in a wild or regional view",
                        within=between(0, 1))
