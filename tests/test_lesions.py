@@ -1342,7 +1342,7 @@ def test_pigmented_patch_is_light_brown_on_fair_and_dark_skin(rng):
     from glsynth.assets.lesions import reference_skin
     from glsynth.assets.morphology import apply_to_skin, make_condition
     drops = {2: [], 5: []}
-    for seed in rng.integers(2 ** 31, size=6):
+    for seed in rng.integers(2 ** 31, size=12):
         f = make_condition("pigmented_patch", [int(seed)], size=128)
         inner = ndimage.binary_erosion(f.mask, iterations=2)
         ring = ndimage.binary_dilation(f.mask, iterations=5) & ~f.mask
@@ -1350,7 +1350,9 @@ def test_pigmented_patch_is_light_brown_on_fair_and_dark_skin(rng):
             skin = reference_skin(fitz, 128, np.random.default_rng(int(seed)))
             lab = cv2.cvtColor(apply_to_skin(f, skin).astype(np.float32) / 255, cv2.COLOR_RGB2LAB)
             drops[fitz].append(np.median(lab[ring][:, 0]) - np.median(lab[inner][:, 0]))
-    # (over 16 seeds the medians are ~10 on type II, ~13 on type V; before, ~22 on type II)
+    # (over 90 seeds the medians are 10.7 on type II, 13.2 on type V; before, ~22 on type
+    # II. Medians of 12 draws stay within 7.5-14.5 and 9.3-17.0 in 999 of 1000 sets; of 6
+    # draws, as this test took, type II's passed 16 in about 1 set in 200)
     for fitz, d in drops.items():
         assert 3 < min(d) and max(d) < 24 and 6 < np.median(d) < {2: 16, 5: 19}[fitz], (fitz, np.round(d, 1))
 
