@@ -101,7 +101,10 @@ def _cache_path(mesh: Mesh, cache_dir=None):
 def stored_occlusion(mesh: Mesh, cache_dir=None) -> np.ndarray | None:
     """The occlusion ``cached_occlusion`` baked for this mesh's geometry, or None (no GL:
     any thread may ask)."""
-    path = _cache_path(mesh, cache_dir)
+    return _read(_cache_path(mesh, cache_dir), len(mesh.vertices))
+
+
+def _read(path, n_vertices) -> np.ndarray | None:
     if not path.is_file():
         return None
     try:
@@ -109,9 +112,9 @@ def stored_occlusion(mesh: Mesh, cache_dir=None) -> np.ndarray | None:
     except (OSError, ValueError) as exc:
         log.warning("occlusion cache %s unusable (%s); baking it again", path, exc)
         return None
-    if occ.shape != (len(mesh.vertices),) or occ.dtype != np.float32 or not np.isfinite(occ).all():
+    if occ.shape != (n_vertices,) or occ.dtype != np.float32 or not np.isfinite(occ).all():
         log.warning("occlusion cache %s holds %s %s, not %d values; baking it again",
-                    path, occ.dtype, occ.shape, len(mesh.vertices))
+                    path, occ.dtype, occ.shape, n_vertices)
         return None
     return occ
 
@@ -121,14 +124,15 @@ def cached_occlusion(renderer, mesh: Mesh, cache_dir=None) -> np.ndarray:
     glsynth's cache, keyed by the mesh's vertices and faces), so that a body is baked
     once per machine however many runs view it."""
     from ..io.images import write_bytes
-    occ = stored_occlusion(mesh, cache_dir)
+    path = _cache_path(mesh, cache_dir)   # (hashes the geometry: once per call)
+    occ = _read(path, len(mesh.vertices))
     if occ is not None:
         return occ
     occ = bake_occlusion(renderer, mesh)
     buf = io.BytesIO()
     np.save(buf, occ)
     try:
-        write_bytes(_cache_path(mesh, cache_dir), buf.getbuffer())
+        write_bytes(path, buf.getbuffer())
     except OSError as exc:
         log.warning("could not cache occlusion for %s: %s", mesh.name, exc)
     return occ
