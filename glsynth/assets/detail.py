@@ -5,8 +5,9 @@ The shader (``shaders/skin.glsl``) samples two periodic tiles with mipmaps, so t
 views see their average and close-ups their structure:
 
 * the **relief tile** (``RELIEF_PERIOD`` metres square) holds the skin's microrelief:
-  irregular polygonal plateaus (~0.45 mm, domed) between primary furrows, finer
-  secondary furrows inside them, long wavy tension lines, pores and a fine roughness.
+  the rhombic net of primary skin lines (crossing families of long furrows ~0.5 mm
+  apart), a finer criss-cross of secondary lines, long wavy tension lines, pores and a
+  fine roughness.
   The shader also reads it at ``MACRO_SCALE`` times the size, for the coarser furrows
   that cross several plateaus (and so that the tile's period does not show). Half
   floats: R, G the height slope along the tile's x and y, B the relative albedo change
@@ -102,10 +103,14 @@ def _wrap_blur(img, sigma):
 
 def _line_family(rng, size, spacing_px, direction, warp, fade):
     """Distance (texels) to the nearest line of a family of wavy, parallel lines that tile
-    the square (lines a x + b y = k size / m, their phase bent by periodic noise of
-    ``warp`` line spacings), and a strength in [0, 1] that fades lines in and out
-    (``fade``: about the fraction of their length missing)."""
+    the square, and a strength in [0, 1] that fades lines in and out (``fade``: about
+    the fraction of their length missing). ``direction``: the lines' normal as two
+    integers (a, b); the lines are a x + b y = k size / m, so that they tile (m lines per
+    tile along the normal, the one that puts them ``spacing_px`` apart most nearly),
+    their phase bent by periodic noise of ``warp`` line spacings."""
     a, b = direction
+    if a != int(a) or b != int(b) or (a, b) == (0, 0):
+        raise ValueError(f"a line family's normal must be two integers, not both 0, got {direction}")
     norm = np.hypot(a, b)
     m = max(1, int(round(size / (spacing_px * norm))))   # lines per tile along the normal
     yy, xx = np.mgrid[0:size, 0:size].astype(np.float32) + 0.5
@@ -113,20 +118,6 @@ def _line_family(rng, size, spacing_px, direction, warp, fade):
     dist = np.abs(phase - np.round(phase)) * size / (m * norm)
     strength = np.clip(1.5 * _periodic_noise(rng, size, 3 * spacing_px) + 2.0 * (0.5 - fade) + 0.5, 0, 1)
     return dist, strength
-
-
-def _cell_walls(rng, size, cell_px, stretch):
-    """Distance (texels) to the nearest wall of a periodic Voronoi tessellation with cells
-    about ``cell_px`` wide, stretched ``stretch`` times along x (plateaus elongate along
-    the skin's tension lines), and each texel's cell index."""
-    n = max(4, int(round((size / cell_px) ** 2)))
-    sites = rng.uniform(0, size, (n, 2))
-    shifts = np.array([(dx, dy) for dx in (-size, 0, size) for dy in (-size, 0, size)])
-    scale = np.array([1.0 / stretch, 1.0])
-    tiled = (sites[None] + shifts[:, None]).reshape(-1, 2) * scale
-    yy, xx = np.mgrid[0:size, 0:size] + 0.5
-    wall, i = voronoi_walls(tiled, np.stack([xx.ravel(), yy.ravel()], 1) * scale)
-    return wall.reshape(size, size).astype(np.float32), (i % n).reshape(size, size)
 
 
 def voronoi_walls(sites, points):
@@ -141,21 +132,30 @@ def voronoi_walls(sites, points):
 def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     rng = np.random.default_rng([seed, 1])
     um = period * 1e6 / size                                        # micrometres per texel
-    # primary furrows: the walls between irregular polygonal plateaus ~0.45 mm across,
-    # ~30 um deep with a ~25 um V, and plateaus domed by 18 um (each plateau a rounded
-    # cushion, what gives skin its grain in a photograph). The depth varies along the
-    # walls, some fading out, so that plateaus merge and the net is not a regular mosaic
-    wall, cell = _cell_walls(rng, size, 450 / um, 1.5)
-    depth = 30.0 * np.clip(0.75 + 0.6 * _periodic_noise(rng, size, 250 / um), 0.0, 1.5)
-    primary = -depth * np.exp(-wall / (25 / um)) - 18.0 * np.exp(-wall / (80 / um))
-    # secondary furrows: cells ~0.15 mm, 7 um deep, in patches
-    wall2, _ = _cell_walls(rng, size, 150 / um, 1.2)
+    # primary furrows: the rhombic net of skin lines. Two families of long lines about
+    # 0.5 mm apart cross at a shallow angle (+-27 degrees to the tile's x, the skin's
+    # tension lines), and a sparser, broken third family crosses them steeply, so the
+    # plateaus are rhombi and triangles. Lines cross at X junctions and run on through
+    # several (the Voronoi net of cells used until 2026-12-06 met at Y junctions and
+    # read as cracked mud or crocodile leather up close). V grooves ~30 um deep and
+    # ~25 um wide, their depth varying along each line, fading out in places; a wide
+    # shallow shoulder rounds the plateaus between them
+    furrows = np.zeros((size, size), np.float32)
+    for spacing, normal, warp, fade, depth in ((500, (-1, 2), 0.25, 0.25, 30.0),
+                                               (560, (1, 2), 0.25, 0.3, 30.0),
+                                               (700, (3, -1), 0.3, 0.6, 22.0)):
+        dist, strength = _line_family(rng, size, spacing / um, normal, warp, fade)
+        depth = depth * strength * np.clip(0.8 + 0.5 * _periodic_noise(rng, size, 250 / um), 0.2, 1.5)
+        furrows -= depth * np.exp(-dist / (25 / um)) + 0.25 * depth * np.exp(-dist / (90 / um))
+    # secondary lines: a finer, shallower criss-cross (~0.17 mm, 6 um) in patches,
+    # dividing the plateaus
     patches = np.clip(0.5 + 0.5 * _periodic_noise(rng, size, 300 / um), 0, 1)
-    secondary = -7.0 * np.exp(-wall2 / (8 / um)) * patches
-    # tension lines: long wavy furrows ~1.5 mm apart along the plateaus' long axis, fading
+    for spacing, normal in ((170, (1, 1)), (190, (-1, 1)), (210, (0, 1))):
+        dist, strength = _line_family(rng, size, spacing / um, normal, 0.35, 0.5)
+        furrows -= 6.0 * strength * patches * np.exp(-dist / (8 / um))
+    # tension lines: long wavy furrows ~1.5 mm apart along x, fading
     dist, strength = _line_family(rng, size, 1500 / um, (0, 1), 0.3, 0.5)
-    tension = -30.0 * strength * np.exp(-dist / (30 / um))
-    furrows = primary + secondary + tension
+    furrows -= 30.0 * strength * np.exp(-dist / (30 / um))
     # pores (follicular openings, 40-60 um across) on a jittered ~0.9 mm grid, half kept
     pores = np.zeros((size, size), np.float32)
     g = int(round(period / 0.0009))
@@ -175,12 +175,11 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     height = furrows + rough - 25.0 * pores                          # micrometres
     gx, gy = _slopes(height, um)
     # albedo: furrows a little darker (shadowed, thinner stratum corneum over them; the
-    # relief's shading does most of it), melanin speckle (+-5% in patches ~0.1-0.3 mm)
-    # and each plateau a shade lighter or darker; mean 0 over the tile
-    cavity = np.clip(-(furrows - furrows.mean()) / 40.0, 0, 1)
+    # relief's shading does most of it) and melanin speckle (+-5% in patches ~0.1-0.3
+    # mm); mean 0 over the tile
+    cavity = np.clip(-(furrows - np.median(furrows)) / 40.0, 0, 1)
     speckle = 0.6 * _periodic_noise(rng, size, 60.0 / um) + 0.4 * _periodic_noise(rng, size, 180.0 / um)
-    plateau = rng.standard_normal(cell.max() + 1)[cell]
-    shade = -0.12 * cavity + 0.05 * speckle + 0.04 * plateau
+    shade = -0.12 * cavity + 0.06 * speckle
     shade -= shade.mean()
     return np.stack([gx, gy, shade, np.clip(pores, 0, 1)], -1).astype(np.float16)
 
@@ -200,8 +199,8 @@ def _crease_tile(seed=0, size=CREASE_SIZE, period=CREASE_PERIOD):
     # groove width um): wrinkles along x ~1.3 mm apart, ~90 um deep (the skin between
     # them bunched into a low ridge), and two fainter oblique families, mostly broken
     families = ((1300, (0, 1), 0.35, 0.35, 90.0, 60.0),
-                (2100, (0.5, 1), 0.45, 0.7, 45.0, 45.0),
-                (2300, (-0.55, 1), 0.45, 0.7, 45.0, 45.0))
+                (2100, (1, 2), 0.45, 0.7, 45.0, 45.0),
+                (2300, (-1, 2), 0.45, 0.7, 45.0, 45.0))
     for spacing, normal, warp, fade, depth, width in families:
         dist, strength = _line_family(rng, size, spacing / um, normal, warp, fade)
         depth = depth * strength * np.clip(1 + 0.4 * _periodic_noise(rng, size, 1500 / um), 0.3, 1.6)
