@@ -221,3 +221,33 @@ def test_a_condition_records_the_skin_type_it_is_drawn_on(rng):
     meta = pasted.placements[0].lesion_meta
     assert lesion.meta["fitzpatrick"] == reference
     assert meta["fitzpatrick"] == own and meta["reference_fitzpatrick"] == reference
+
+
+def test_a_texel_shows_the_decal_that_covers_it_most(rng):
+    """Where two decals' coverage overlaps (a small lesion in the fading edge of a large
+    one), each texel takes the decal that covers it more, whichever was built first: the
+    small lesion is not cut off along body texels. Margin rings only take free texels."""
+    from glsynth.pipeline.decals import _mark_region
+
+    n = 24
+    rows, cols = np.mgrid[0:n, 0:n]
+    seen = (rows.ravel(), cols.ravel(), cols.ravel(), rows.ravel())   # decal pixel = texel
+    faint = np.zeros((n, n), np.uint8)
+    faint[:, : n // 2 + 4] = rng.integers(1, 60)                      # a large lesion's fading edge
+    small = np.zeros((n, n), np.uint8)
+    r0, c0 = rng.integers(4, n - 8, 2)
+    small[r0:r0 + 4, c0:c0 + 4] = 255                                 # a small lesion
+    small[r0 - 1:r0 + 5, c0 - 1:c0 + 5] = np.maximum(small[r0 - 1:r0 + 5, c0 - 1:c0 + 5], 30)
+    want = np.where(small > faint, 2, np.where(faint > 0, 1, np.where(small > 0, 2, 0)))
+    for order in ((1, 2), (2, 1)):
+        region = np.zeros((n, n), np.uint16)
+        owner = np.zeros((n, n), np.uint8)
+        for layer in order:
+            _mark_region(region, owner, layer, seen, faint if layer == 1 else small, margin=1)
+        core = want > 0
+        assert (region[core] == want[core]).all(), order
+        # the ring around the small lesion's coverage goes to it where it is free (not
+        # the large one's, nor in the large one's own ring)
+        ring = ((want == 0) & (np.abs(rows - (r0 + 1.5)) <= 3.5) & (np.abs(cols - (c0 + 1.5)) <= 3.5)
+                & (cols > n // 2 + 4))
+        assert (region[ring] == 2).all(), order

@@ -128,6 +128,7 @@ def build_decals(renderer, mesh, texels, original, pasted, final, placements, le
     axes = np.zeros((n, 2, 3))
     texel = np.zeros(n)
     region = np.zeros(original.shape[:2], np.uint16)
+    owner_cover = np.zeros(original.shape[:2], np.uint8)   # the coverage of the texel's decal
     unit = mesh.skin.unit if mesh.skin is not None else 1.0
     for i, p in enumerate(placements):
         cam = decal_camera(p, size)
@@ -161,7 +162,7 @@ def build_decals(renderer, mesh, texels, original, pasted, final, placements, le
         view_m = cam.view_matrix()
         axes[i] = [view_m[0, :3], -view_m[1, :3]]
         texel[i] = pixel_world
-        _mark_region(region, i + 1, seen, colour[i][..., 3], margin)
+        _mark_region(region, owner_cover, i + 1, seen, colour[i][..., 3], margin)
     return Decals(region, projection, axes, texel, colour, aux, instances)
 
 
@@ -247,18 +248,28 @@ def _cover_texture_bleed(c, inst, rows, cols, seen, fg):
     c[:, 3] = np.maximum(c[:, 3], 255 * rim)
 
 
-def _mark_region(region, layer, seen, alpha, margin):
+def _mark_region(region, owner_cover, layer, seen, alpha, margin):
     """Give ``layer`` to the texels whose surface point the decal sees with coverage > 0
-    (``seen``: from _seen_texels), and to ``margin`` rings of seen texels around them."""
+    (``seen``: from _seen_texels) where no decal covers them more (``owner_cover``: the
+    coverage of each texel's decal so far, updated), and to ``margin`` rings of seen
+    texels around them that no decal has. A texel shows one decal, and each decal holds
+    only its own lesion: when the first decal to claim a texel kept it, a small lesion
+    lying in the fading edge of a large one's coverage was cut off along body texels,
+    a staircase across its image and labels."""
     r, c, ix, iy = seen
     if not len(r):
         return
-    covered = alpha[iy, ix] > 0
-    mark = np.zeros(region.shape, bool)
-    mark[r[covered], c[covered]] = True
+    cover = alpha[iy, ix]
+    covered = cover > 0
+    r1, c1, cover = r[covered], c[covered], cover[covered]
+    wins = (region[r1, c1] == 0) | (cover > owner_cover[r1, c1])
+    region[r1[wins], c1[wins]] = layer
+    owner_cover[r1[wins], c1[wins]] = cover[wins]
     if margin:
+        mark = np.zeros(region.shape, bool)
+        mark[r1, c1] = True
         ok = np.zeros(region.shape, bool)
         ok[r, c] = True
         k = np.ones((2 * margin + 1,) * 2, np.uint8)
-        mark |= (cv2.dilate(mark.view(np.uint8), k) > 0) & ok
-    region[mark & (region == 0)] = layer
+        ring = (cv2.dilate(mark.view(np.uint8), k) > 0) & ok & (region == 0)
+        region[ring] = layer
