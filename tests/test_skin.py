@@ -106,6 +106,68 @@ def test_detail_shows_up_close(renderer, rng):
     assert grads[1] > 10 * grads[0] and grads[1] > 0.01
 
 
+def test_relief_slope_variance_is_that_of_the_gl_mipmap(renderer):
+    """The shader narrows the specular lobe by the relief's slope variance at the level
+    it reads (detail.mip_slope_variance): computed in numpy, it must be that of the mip
+    levels GL itself made of the relief texture, read back."""
+    with renderer.ctx:   # (the renderer's context current, as its render calls make it)
+        tiles = renderer._detail_tiles()
+        table = tiles["tiles"].relief_slope_var
+        tex = tiles["relief"]
+        size = tex.size[0]
+        assert len(table) == detail.RELIEF_LEVELS == size.bit_length()
+        for level, expected in enumerate(table):
+            side = max(1, size >> level)
+            texels = np.frombuffer(tex.read(level=level), np.float16).reshape(side, side, 4).astype(np.float64)
+            got = texels[..., 0].var() + texels[..., 1].var()
+            assert got == pytest.approx(expected, rel=0.02, abs=1e-6), (level, got, expected)
+    assert table[0] > 0.01 and table[-1] < 1e-9
+    assert all(a > b for a, b in zip(table[:-2], table[1:-1]))
+
+
+def _flash_mean_and_glint(renderer, mesh, w, roughness, x):
+    """Linear mean of the frame's centre half and its 99th percentile over the median,
+    with a flash at the lens (the mirror direction, where the specular lobe shows)."""
+    cam = _look_down(renderer, w, x=x)
+    lights = [PointLight(np.asarray(cam.eye), ambient=0.0, diffuse=1.0)]
+    img = renderer.render(mesh, cam, passes=("rgb",), lights=lights,
+                          material=Material(model="skin", roughness=roughness, oil=0.0, relief=1.0))["rgb"]
+    lin = np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4)
+    c = lin.shape[0] // 4
+    lum = lin[c:-c, c:-c].mean(-1)
+    return lum.mean(), np.percentile(lum, 99) / np.median(lum), img
+
+
+def test_relief_up_close_narrows_the_specular_lobe(renderer, rng):
+    """The measured roughness of skin includes its micro-relief's slopes. Up close,
+    where the shader draws those slopes as normals, the lobe narrows by their variance:
+    under a flash the plateaus glint (the brightest 1% of pixels stand further above
+    the median than with the measured lobe on top of the drawn relief), while the
+    frame's mean stays within 10% of a far view's, which draws no relief and keeps the
+    measured lobe (without the narrowing a close-up is up to ~8% darker). Far views are
+    unchanged by it."""
+    mesh = _skin_plane(rng, half=10.0, params=(128, 0, 0, 0))
+    with renderer.ctx:
+        tiles = renderer._detail_tiles()
+    measured_only = dataclasses.replace(tiles["tiles"], relief_slope_var=(0.0,) * detail.RELIEF_LEVELS)
+    roughness = rng.uniform(0.45, 0.6)
+    x = rng.uniform(-1, 1)
+    far_mean, _, far = _flash_mean_and_glint(renderer, mesh, 4.0, roughness, x)
+    try:
+        tiles["tiles"], narrowed = measured_only, tiles["tiles"]
+        _, glint_measured, _ = _flash_mean_and_glint(renderer, mesh, 0.006, roughness, x)
+        _, _, far_measured = _flash_mean_and_glint(renderer, mesh, 4.0, roughness, x)
+    finally:
+        tiles["tiles"] = narrowed
+    assert np.abs(far - far_measured).max() < 0.1 / 255
+    for w in (0.004, 0.006, 0.01, 0.03):
+        mean, glint, img = _flash_mean_and_glint(renderer, mesh, w, roughness, x)
+        assert np.isfinite(img).all()
+        assert abs(mean / far_mean - 1) < 0.10, (w, roughness, mean, far_mean)
+        if w == 0.006:
+            assert glint > glint_measured + 0.1, (glint, glint_measured)
+
+
 def test_detail_and_hair_stay_off_non_skin(renderer, rng):
     """Where the detail weight is 0 (non-skin: clothing, scalp hair) the image does not
     depend on the skin parameters at all: no relief, pores or hair; where it is 255
