@@ -101,7 +101,6 @@ out vec4 out_color;
 #endif
 
 #if DETAIL
-// The world directions of a tile's u and v projected along world axis ``i``
 // The variance of the relief tile's slopes that a lookup at ``lod`` still holds (the
 // rest is averaged away by the mipmap), between the levels' values
 float resolved_slope_var(float lod) {
@@ -110,6 +109,7 @@ float resolved_slope_var(float lod) {
     return mix(u_relief_var[i], u_relief_var[min(i + 1, RELIEF_LEVELS - 1)], l - float(i));
 }
 
+// The world directions of a tile's u and v projected along world axis ``i``
 void tile_axes(int i, out vec3 eu, out vec3 ev) {
     eu = i == 0 ? vec3(0.0, 0.0, 1.0) : vec3(1.0, 0.0, 0.0);
     ev = i == 1 ? vec3(0.0, 0.0, 1.0) : vec3(0.0, 1.0, 0.0);

@@ -82,7 +82,7 @@ class DetailTiles:
     hair: np.ndarray
     crease: np.ndarray
     meso: np.ndarray
-    relief_slope_var: tuple = ()   # mip_slope_variance(relief)
+    relief_slope_var: tuple   # mip_slope_variance(relief), read by the shader
     relief_period: float = RELIEF_PERIOD
     hair_period: float = HAIR_PERIOD
     crease_period: float = CREASE_PERIOD
