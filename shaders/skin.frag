@@ -407,8 +407,12 @@ void main() {
     // the skin's measured specular lobe (roughness) includes the slopes of its
     // micro-relief; those this pixel draws as normals are taken out of it, so close-ups
     // show the sharper reflection of the surface film on each plateau and far views,
-    // whose mip levels hold no relief, keep the measured lobe
-    a2 = max(a2 - resolved_var, min(a2, A2_FILM));
+    // whose mip levels hold no relief, keep the measured lobe. Hyperkeratotic skin
+    // (detail weight above 1: seborrhoeic keratoses, warts, lichenified plaques) has no
+    // smooth film: its dry, flaking keratin keeps the measured lobe at every scale (with
+    // the film, a seborrhoeic keratosis glinted on every ridge like wet leather)
+    float film = mix(A2_FILM, 1.0, clamp((detail_weight - 1.0) / 0.3, 0.0, 1.0));
+    a2 = max(a2 - resolved_var, min(a2, film));
     float alpha = sqrt(a2);
     float k = 0.5 * alpha;
     float nv = max(dot(n, v), 1e-4);

@@ -173,6 +173,38 @@ def test_relief_up_close_narrows_the_specular_lobe(renderer, rng):
             assert glint > glint_measured + 0.1, (glint, glint_measured)
 
 
+def test_hyperkeratotic_lesion_keeps_the_measured_lobe(renderer, rng):
+    """A lesion decal whose detail weight is over 1.3 (seborrhoeic keratosis, wart,
+    lichenified plaque: dry keratin, no smooth film) renders up close exactly as with
+    the measured lobe, while one at the skin's own weight narrows it and glints."""
+    from test_decals import plane_with_decal
+    d = 256
+    colour = np.zeros((d, d, 4), np.uint8)
+    colour[:] = (150, 110, 90, 255)
+    prm = np.full((16, 16, 4), (128, 0, 0, 0), np.uint8)
+    with renderer.ctx:
+        tiles = renderer._detail_tiles()
+    measured_only = dataclasses.replace(tiles["tiles"], relief_slope_var=(0.0,) * detail.RELIEF_LEVELS)
+    roughness = rng.uniform(0.45, 0.6)
+    xs = rng.uniform(-0.01, 0.01, 6)                    # the decal covers +-2.5 cm
+    results = {}
+    for weight in (1.0, rng.uniform(1.31, 1.9)):
+        aux = np.full((d, d, 4), (128, 128, 0, round(weight / 2 * 255)), np.uint8)
+        mesh, _ = plane_with_decal(rng, d=d, aux=aux, colour=colour, ids=np.zeros((d, d), np.uint16), scale=0.05)
+        hair = mesh.vertices[mesh.faces][..., :2].astype(np.float32)
+        mesh = mesh.copy_with(skin=SkinSurface(prm, None, hair, (40, 30, 25), hair_curl=0.0))
+        _, glint, img = _flash_mean_and_glint(renderer, mesh, 0.004, roughness, xs)
+        try:
+            tiles["tiles"], narrowed = measured_only, tiles["tiles"]
+            _, glint_measured, img_measured = _flash_mean_and_glint(renderer, mesh, 0.004, roughness, xs)
+        finally:
+            tiles["tiles"] = narrowed
+        results[weight] = (glint, glint_measured, np.abs(img - img_measured).max())
+    (healthy, keratotic) = results.values()
+    assert healthy[0] > healthy[1] + 0.1 and healthy[2] > 10 / 255, results
+    assert keratotic[2] < 0.1 / 255, results
+
+
 def test_detail_and_hair_stay_off_non_skin(renderer, rng):
     """Where the detail weight is 0 (non-skin: clothing, scalp hair) the image does not
     depend on the skin parameters at all: no relief, pores or hair; where it is 255
