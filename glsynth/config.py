@@ -315,9 +315,7 @@ class ViewsConfig:
                              within=between(0, 1))
     shading: str = key("skin", "skin: linear-light skin reflectance with micro-relief and hair "
                        "(shaders/skin.frag); phong: the paper's", choices=SHADINGS)
-    roughness: list = key([0.45, 0.6], "skin: GGX roughness of dry skin as measured over a patch, "
-                          "micro-relief included (up close the shader narrows it by the relief it draws)",
-                          pair=between(0.02, 1))
+    roughness: list = key([0.45, 0.6], "skin: GGX roughness of dry skin", pair=between(0.02, 1))
     oil: list = key([0.1, 0.7], "skin: scales the body's oiliness map", pair=between(0, 1))
     relief: list = key([0.7, 1.3], "skin: scales the micro-relief", pair=between(0, 10))
     detail: bool = key(True, "skin: micro-relief and hair")

@@ -8,11 +8,7 @@
 //   relief (decals: domes, ulcer walls, scale) is millimetres to centimetres across and
 //   shades every channel alike, as the surface's own shape does;
 // * specular: one GGX lobe with Smith masking and Schlick's Fresnel (F0 0.028, skin's
-//   refractive index 1.4); sebum (the per-body oiliness map) sharpens and raises it.
-//   Its roughness is skin's as measured over a patch, micro-relief included; with
-//   DETAIL the slope variance of the relief a pixel resolves (u_relief_var at its mip
-//   level) is taken out of it, down to the surface film's (A2_FILM), so close-ups
-//   glint on the plateaus under a flash and far views keep the measured lobe;
+//   refractive index 1.4); sebum (the per-body oiliness map) sharpens and raises it;
 // * ambient: the room's, times the share of it the body lets reach the point (per-vertex
 //   ambient occlusion, glsynth.gl.occlusion; 1 for meshes without).
 // With DETAIL, micro-detail that no body texture could hold (glsynth.assets.detail):
@@ -68,7 +64,6 @@ uniform float u_relief_amount;     // scales the relief (Material.relief)
 uniform float u_pore_mean;         // mean of the relief tile's pore channel
 uniform float u_macro_scale;       // the tile's second, coarser reading (detail.MACRO_SCALE)
 uniform float u_macro_weight;      // and its share at relief level 0.5 (detail.MACRO_WEIGHT)
-uniform float u_relief_var[RELIEF_LEVELS];   // slope variance of each mip level of the tile
 uniform sampler2D u_meso;          // mesoscale tile (half floats): RG slope, B melanin, A blood
 uniform float u_meso_period;
 uniform float u_meso_size;
@@ -101,14 +96,6 @@ out vec4 out_color;
 #endif
 
 #if DETAIL
-// The variance of the relief tile's slopes that a lookup at ``lod`` still holds (the
-// rest is averaged away by the mipmap), between the levels' values
-float resolved_slope_var(float lod) {
-    float l = clamp(lod, 0.0, float(RELIEF_LEVELS - 1));
-    int i = int(l);
-    return mix(u_relief_var[i], u_relief_var[min(i + 1, RELIEF_LEVELS - 1)], l - float(i));
-}
-
 // The world directions of a tile's u and v projected along world axis ``i``
 void tile_axes(int i, out vec3 eu, out vec3 ev) {
     eu = i == 0 ? vec3(0.0, 0.0, 1.0) : vec3(1.0, 0.0, 0.0);
@@ -243,7 +230,6 @@ void main() {
     float hair_weight = min(detail_weight, 1.0);
     vec3 grad = vec3(0.0);         // height gradient of relief and lesions, world units
     vec3 n_shape = ng;             // the surface's shape: its geometry and lesion relief
-    float resolved_var = 0.0;      // slope variance of the micro-relief this pixel draws
 #if DECALS
     vec4 daux;
     vec3 dax, day;
@@ -295,7 +281,6 @@ void main() {
     // at relief level 1 (0.5 in the map, most skin) the tile's own depths; lichenified
     // skin (detail weight above 1) deepens it
     float relief = level * u_relief_amount * max(detail_weight, 1.0);
-    resolved_var = relief * relief * (resolved_slope_var(lod) + macro_w * macro_w * resolved_slope_var(macro_lod));
     // the height gradient of each projection in world axes, blended, then kept in the
     // tangent plane (the surface gradient)
     grad += relief * (w.x * (p1.r * u1 + p1.g * v1) + w.y * (p2.r * u2 + p2.g * v2));
@@ -403,17 +388,8 @@ void main() {
 #endif
     n = bumped(ng, grad);
     float roughness = mix(mix(u_roughness, 0.75 * u_roughness, oil), 0.2, gloss);
-    float a2 = roughness * roughness * roughness * roughness;
-    // the skin's measured specular lobe (roughness) includes the slopes of its
-    // micro-relief; those this pixel draws as normals are taken out of it, so close-ups
-    // show the sharper reflection of the surface film on each plateau and far views,
-    // whose mip levels hold no relief, keep the measured lobe. Hyperkeratotic skin
-    // (detail weight above 1: seborrhoeic keratoses, warts, lichenified plaques) has no
-    // smooth film: its dry, flaking keratin keeps the measured lobe at every scale (with
-    // the film, a seborrhoeic keratosis glinted on every ridge like wet leather)
-    float film = mix(A2_FILM, 1.0, clamp((detail_weight - 1.0) / 0.3, 0.0, 1.0));
-    a2 = max(a2 - resolved_var, min(a2, film));
-    float alpha = sqrt(a2);
+    float alpha = roughness * roughness;
+    float a2 = alpha * alpha;
     float k = 0.5 * alpha;
     float nv = max(dot(n, v), 1e-4);
     vec3 wrap = u_wrap * vec3(1.0, 0.6, 0.45);

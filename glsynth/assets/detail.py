@@ -59,11 +59,6 @@ HAIR_SIZE = 2048          # texels (11.7 um each: over twice as fine as a close-
                           # finest pixel, 29 um at 1:1 macro in 512 px)
 MACRO_SCALE = 4.37        # the relief tile's second, coarser reading (incommensurate)
 MACRO_WEIGHT = 0.2        # its share at relief level 0.5 (the shader: times (level / 0.5)^2)
-RELIEF_LEVELS = RELIEF_SIZE.bit_length()   # mip levels of the relief tile (1024 ... 1 texels)
-# GGX roughness of the skin's surface film (stratum corneum and sebum) on a plateau of
-# the relief, the sharpest lobe the shader narrows the measured one to where a pixel
-# resolves the relief's slopes (skin.frag; 0.32: alpha^2 0.01)
-FILM_ROUGHNESS = 0.32
 CREASE_PERIOD = 0.024     # metres covered by one crease tile
 CREASE_SIZE = 1024        # texels (23 um each)
 COARSE_CREASE_SCALE = 3.3  # the crease tile's second reading: deep creases
@@ -82,7 +77,6 @@ class DetailTiles:
     hair: np.ndarray
     crease: np.ndarray
     meso: np.ndarray
-    relief_slope_var: tuple   # mip_slope_variance(relief), read by the shader
     relief_period: float = RELIEF_PERIOD
     hair_period: float = HAIR_PERIOD
     crease_period: float = CREASE_PERIOD
@@ -190,20 +184,6 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     return np.stack([gx, gy, shade, np.clip(pores, 0, 1)], -1).astype(np.float16)
 
 
-def mip_slope_variance(tile) -> tuple:
-    """Per mip level of a square, power-of-two slope tile (RG the slopes along x and y),
-    level 0 the tile itself: the variance of the slopes summed over both axes (the mean
-    squared tangent of the normal's tilt from the tile's mean) that the level still
-    holds, each level the 2 x 2 box average of the one before, as the GL mipmap."""
-    g = np.asarray(tile, np.float64)[..., :2]
-    out = []
-    while True:
-        out.append(float(g[..., 0].var() + g[..., 1].var()))
-        if g.shape[0] == 1:
-            return tuple(out)
-        g = g.reshape(g.shape[0] // 2, 2, g.shape[1] // 2, 2, 2).mean((1, 3))
-
-
 def _slopes(height, um):
     """Central-difference slopes (um / um) along x and y of a periodic height map (um)."""
     gy = (np.roll(height, -1, 0) - np.roll(height, 1, 0)) / (2 * um)
@@ -305,6 +285,4 @@ def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
 def detail_tiles(seed: int = 0) -> DetailTiles:
     """The relief, hair, crease and mesoscale tiles for ``seed``, made once per process
     (~5 s on 2 cores, ~2.7 s of it the relief, ~1.5 s the creases)."""
-    relief = _relief_tile(seed)
-    return DetailTiles(relief, _hair_tile(seed), _crease_tile(seed), _meso_tile(seed),
-                       relief_slope_var=mip_slope_variance(relief))
+    return DetailTiles(_relief_tile(seed), _hair_tile(seed), _crease_tile(seed), _meso_tile(seed))

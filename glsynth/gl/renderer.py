@@ -16,7 +16,7 @@ import cv2
 import moderngl
 import numpy as np
 
-from ..assets.detail import COARSE_CREASE_SCALE, FILM_ROUGHNESS, MACRO_SCALE, MACRO_WEIGHT, RELIEF_LEVELS
+from ..assets.detail import COARSE_CREASE_SCALE, MACRO_SCALE, MACRO_WEIGHT
 from ..assets.hairflow import t_scale_at_corners
 from ..camera import Camera
 from ..errors import InputError
@@ -418,8 +418,7 @@ class Renderer:
         if key not in self.programs:
             frag = with_defines(shader_source("skin.frag"), NUM_LIGHTS=n_lights, SHADOWS=shadows,
                                 DETAIL=detail, HAIR=hair, DECALS=decals,
-                                FALLOFF_NEAREST=float(FALLOFF_NEAREST), RELIEF_LEVELS=RELIEF_LEVELS,
-                                A2_FILM=float(FILM_ROUGHNESS ** 4))
+                                FALLOFF_NEAREST=float(FALLOFF_NEAREST))
             vert = shader_source("mesh.vert")
             vert = with_defines(vert, SHADOWS=shadows, OCCLUSION=1, **({"HAIR_COORDS": 1} if hair else {}))
             prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
@@ -716,8 +715,7 @@ class Renderer:
             tiles["meso"].use(SKIN_UNITS[4])
             values.update(u_relief_period=t.relief_period * unit, u_relief_size=float(t.relief.shape[0]),
                           u_pore_mean=tiles["pore_mean"], u_macro_scale=MACRO_SCALE,
-                          u_macro_weight=MACRO_WEIGHT, u_relief_var=t.relief_slope_var,
-                          u_hair_period=t.hair_period * unit,
+                          u_macro_weight=MACRO_WEIGHT, u_hair_period=t.hair_period * unit,
                           u_hair_size=float(t.hair.shape[0]), u_unit=unit,
                           u_crease_period=t.crease_period * unit, u_crease_size=float(t.crease.shape[0]),
                           u_coarse_crease_scale=COARSE_CREASE_SCALE, u_meso_period=t.meso_period * unit,
