@@ -204,8 +204,11 @@ def test_a_lock_of_hair_comes_in_from_the_side_the_scalp_lies(rng, up):
     occ = _hair(int(rng.integers(1 << 30)), shape, up=up)
     ys, xs = np.nonzero(occ.mask)
     offset = np.array([xs.mean() - shape[1] / 2, ys.mean() - shape[0] / 2])
-    # within the 50 degrees it may turn, plus the outline's waves
-    assert offset @ np.asarray(up, float) / np.linalg.norm(offset) > np.cos(np.radians(65))
+    # within the 50 degrees it may turn, plus the outline's waves and, from a corner, the
+    # crop of a rectangular frame: over 2000 draws per side the centroid's angle to ``up``
+    # reached at most 63 degrees from an edge and 73 from the corner (p99.9 70; 65, the
+    # bound until 2026-12-06, failed one corner draw in 300). Still under a right angle.
+    assert offset @ np.asarray(up, float) / np.linalg.norm(offset) > np.cos(np.radians(80))
 
 
 def _coherence(gray, mask):
