@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import ImageError, read_mask, read_rgb
 from .colour import ita_range, shades_of_gray
-from .morphology import PRESETS, REFERENCE_BLOOD, apply_to_skin, make_condition
+from .morphology import PRESETS, apply_to_skin, make_condition
 
 log = logging.getLogger(__name__)
 
@@ -441,7 +441,7 @@ def reference_skin(fitzpatrick: int, size: int, rng) -> np.ndarray:
     chromophore model, with gentle mottling (from the model's table: within 1/255)."""
     from .chromophores import skin_rgb_fast
     mel = _REFERENCE_MELANIN[int(fitzpatrick)] * np.exp(0.08 * fractal_noise(rng, (size, size), size / 3))
-    blood = REFERENCE_BLOOD * np.exp(0.25 * fractal_noise(rng, (size, size), size / 4))
+    blood = 0.02 * np.exp(0.25 * fractal_noise(rng, (size, size), size / 4))
     return np.clip(np.rint(skin_rgb_fast(mel, blood) * 255), 0, 255).astype(np.uint8)
 
 

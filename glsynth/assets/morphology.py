@@ -41,9 +41,9 @@ from ..sampling import sample_bilinear
 from .chromophores import skin_inverse, skin_rgb_fast
 from .colour import lab_to_srgb
 
-FIELDS = ("melanin", "melanin_add", "blood", "blood_add", "erythema", "oxygen", "dermal_melanin",
-          "bilirubin", "scatter", "epidermis", "scale", "crust", "crust_dark", "height", "gloss", "detail")
-NEUTRAL = {"melanin": 1.0, "melanin_add": 0.0, "blood": 1.0, "blood_add": 0.0, "erythema": 0.0, "oxygen": 0.75,
+FIELDS = ("melanin", "melanin_add", "blood", "blood_add", "oxygen", "dermal_melanin", "bilirubin",
+          "scatter", "epidermis", "scale", "crust", "crust_dark", "height", "gloss", "detail")
+NEUTRAL = {"melanin": 1.0, "melanin_add": 0.0, "blood": 1.0, "blood_add": 0.0, "oxygen": 0.75,
            "dermal_melanin": 0.0, "scatter": 1.0,
            "bilirubin": 0.0, "epidermis": 1.0, "scale": 0.0, "crust": 0.0, "crust_dark": 0.0, "height": 0.0,
            "gloss": 0.0, "detail": 1.0}
@@ -56,21 +56,6 @@ FIBRIN_GREY = (206, 204, 194)      # wet fibrinous slough: grey-white, no yellow
 # blood volume fraction added where the epidermis is gone (Builder.erode): about that of
 # a florid erythema (Builder.erythema amount 2.5)
 ERODED_BLOOD = 0.25
-# the blood volume fraction of the reference skin the presets are drawn on (lesions.
-# reference_skin); erythema is authored there, see vascular_gain
-REFERENCE_BLOOD = 0.02
-
-
-def vascular_gain(blood):
-    """How much more blood an erythema adds to skin with ``blood`` (volume fraction, the
-    skin model's inverse of its colour) than to the reference skin: dilating vessels adds
-    more where there are more of them. The presets' amounts were judged on the
-    reference skin (a* ~5), while bodies' skin, as real light skin, has a* 11-13, which
-    the model explains with 7-20% blood, where haemoglobin's absorption already
-    saturates: the same added blood showed about half the redness there (lesion minus
-    surrounding skin a* 2-8 in rendered views against 8-18 on the reference). The
-    square root, not proportion, keeps florid erythema short of the model's 0.7 cap."""
-    return np.sqrt(np.maximum(blood, REFERENCE_BLOOD) / REFERENCE_BLOOD)
 
 
 @dataclass
@@ -101,7 +86,7 @@ class LesionFields:
             dev = np.maximum.reduce([
                 np.abs(np.log(np.maximum(f["melanin"], 1e-3))) / 0.3, f["melanin_add"] / 0.01,
                 np.abs(f["blood"] - 1) / 0.3,
-                f["blood_add"] / 0.02, f["erythema"] / 0.02, f["dermal_melanin"] / 0.005, f["bilirubin"] / 0.05,
+                f["blood_add"] / 0.02, f["dermal_melanin"] / 0.005, f["bilirubin"] / 0.05,
                 np.abs(f["scatter"] - 1) / 0.1,
                 np.abs(f["epidermis"] - 1) / 0.3, f["scale"] / 0.05, f["crust"] / 0.05,
                 np.abs(f["height"]) / 0.05, f["gloss"] / 0.1, np.abs(f["detail"] - 1) / 0.2])
@@ -343,11 +328,10 @@ class Builder:
 
     # secondary changes
     def erythema(self, w, amount, oxygen=0.8):
-        """Dilated papillary vessels: ``amount`` x 10% blood volume added to the
-        reference skin, more to skin with more vessels (``vascular_gain``; negative:
+        """Dilated papillary vessels: ``amount`` x 10% blood volume added (negative:
         blanching, a factor on the skin's own blood)."""
         if amount >= 0:
-            self.f["erythema"] += w * amount * 0.1
+            self.f["blood_add"] += w * amount * 0.1
         else:
             self.mix("blood", w, 1 + amount)
         self.mix("oxygen", w, oxygen)
@@ -726,7 +710,7 @@ def _acne(b, rng, R):
         if kind == "pustule":         # a yellow-white head of pus under a thin, tense roof
             head = b.weight(c.shape("round", r * rng.uniform(0.3, 0.5), centre=p, irregular=0.05, warp=0.0),
                             r * 0.35, "ill-defined")
-            b.f["erythema"] *= 1 - 0.6 * head
+            b.f["blood_add"] *= 1 - 0.6 * head
             b.f["scale"] = np.maximum(b.f["scale"], rng.uniform(0.45, 0.75) * head)
             b.f["gloss"] = np.maximum(b.f["gloss"], 0.4 * head)
         b.outline(w, 0.45)
@@ -1378,7 +1362,7 @@ def _herpes(b, rng, R):
                 b.crust(v, 0.9, crust, lump_mm=r_hi)
             else:
                 # fluid lifts the epidermis off the red base: paler, milky, glistening
-                b.f["erythema"] *= 1 - 0.6 * v
+                b.f["blood_add"] *= 1 - 0.6 * v
                 b.mix("scatter", v, rng.uniform(1.2, 1.5))
                 cloudy = 0.2 if stage == "vesicles" else 0.6
                 b.f["scale"] = np.maximum(b.f["scale"], cloudy * v)
@@ -1728,15 +1712,6 @@ def _relabel(b, min_mm2=0.05):
     b.instances = out
 
 
-def condition_chromophores(vals: dict, melanin, blood) -> tuple:
-    """The skin model's parameters (melanin, blood, oxygen, bilirubin, dermal melanin,
-    epidermis, scatter) where a condition's field values ``vals`` act on skin of
-    ``melanin`` and ``blood`` (arrays of one shape)."""
-    return (np.clip(melanin * vals["melanin"] + vals["melanin_add"], 0, 1),
-            np.clip(blood * vals["blood"] + vals["blood_add"] + vals["erythema"] * vascular_gain(blood), 0, 0.7),
-            vals["oxygen"], vals["bilirubin"], vals["dermal_melanin"], vals["epidermis"], vals["scatter"])
-
-
 def apply_to_skin(fields: LesionFields, skin_rgb_uint8: np.ndarray, at=None) -> np.ndarray:
     """The condition on a skin: ``skin_rgb_uint8`` (N x 3 or H x W x 3 uint8) holds the
     skin's colour at each sample, ``at`` the samples' grid positions (N x 2 float
@@ -1753,7 +1728,10 @@ def apply_to_skin(fields: LesionFields, skin_rgb_uint8: np.ndarray, at=None) -> 
         vals = {k: sample_bilinear(v, cols - 0.5, rows - 0.5, cv2.BORDER_REPLICATE)
                 for k, v in fields.f.items()}
     mel, blood, residual = skin_inverse()(flat)
-    model = skin_rgb_fast(*condition_chromophores(vals, mel, blood))
+    model = skin_rgb_fast(np.clip(mel * vals["melanin"] + vals["melanin_add"], 0, 1),
+                          np.clip(blood * vals["blood"] + vals["blood_add"], 0, 0.7),
+                          vals["oxygen"], vals["bilirubin"], vals["dermal_melanin"], vals["epidermis"],
+                          vals["scatter"])
     from .colour import srgb_to_lab
     lab = srgb_to_lab(model) + residual * np.clip(vals["epidermis"], 0.3, 1.0)[:, None]
     out = lab_to_srgb(lab)
