@@ -5,8 +5,8 @@ Fitzpatrick17k layout: neither lesion nor non-skin, kept 12 px from the lesion):
 smoothed with a mask-normalised Gaussian (sigma 3% of the shorter side, so pores, hair and
 noise drop out) and the spread of each channel is measured: the standard deviation of L*
 divided by mean L* and the standard deviations of a* and b*. Also per image with a lesion,
-its contrast: CIEDE76 between the mean Lab inside the lesion (eroded 3 px) and that of the
-healthy skin 12-40 px outside it. And per image, how much of its healthy skin lies in deep
+its contrast: the mean Lab inside the lesion (eroded 3 px) minus that of the healthy skin
+12-40 px outside it, as CIEDE76 and as the signed a* (redness) and L* differences. And per image, how much of its healthy skin lies in deep
 shade: the share of those pixels (unsmoothed) whose L* is below SHADE (0.6) times the
 image's median skin L*, a fifth of the median's luminance or less (skin turning away from
 the light, a fold, a limb behind). Printed are the 10th / 50th / 90th percentiles over
@@ -43,14 +43,14 @@ def spread(img_bgr, skin):
 
 
 def contrast(img_bgr, lesion, skin):
-    """CIEDE76 between the lesion's mean Lab and the ring of skin 12-40 px outside it, or None."""
+    """The lesion's mean Lab minus that of the ring of skin 12-40 px outside it, or None."""
     lab = cv2.cvtColor(img_bgr.astype(np.float32) / 255.0, cv2.COLOR_BGR2LAB)
     inside = cv2.erode(lesion.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
     grow = lambda r: cv2.dilate(lesion.astype(np.uint8), np.ones((2 * r + 1,) * 2, np.uint8)) > 0  # noqa: E731
     ring = grow(40) & ~grow(12) & skin
     if inside.sum() < 50 or ring.sum() < 200:
         return None
-    return float(np.linalg.norm(lab[inside].mean(0) - lab[ring].mean(0)))
+    return lab[inside].mean(0) - lab[ring].mean(0)
 
 
 def shade(img_bgr, skin):
@@ -105,11 +105,13 @@ def report(name, rows):
         return
     v = np.array(spreads)
     pct = lambda x: "/".join(f"{y:.3g}" for y in np.percentile(x, [10, 50, 90]))  # noqa: E731
-    dE = [r[1] for r in rows if r[1] is not None]
+    dLab = np.array([r[1] for r in rows if r[1] is not None]).reshape(-1, 3)
+    dE = np.linalg.norm(dLab, axis=1)
     sh = np.array([r[2] for r in rows if r[2] is not None])
     print(f"{name} ({len(v)} images): L std/mean {pct(v[:, 0])}  a* std {pct(v[:, 1])}  "
           f"b* std {pct(v[:, 2])}  mean Lab {v[:, 3].mean():.1f} {v[:, 4].mean():.1f} "
-          f"{v[:, 5].mean():.1f}  lesion dE ({len(dE)}) {pct(dE) if dE else '-'}  "
+          f"{v[:, 5].mean():.1f}  lesion dE ({len(dE)}) {pct(dE) if len(dE) else '-'}  "
+          f"da* {pct(dLab[:, 1]) if len(dE) else '-'}  dL* {pct(dLab[:, 0]) if len(dE) else '-'}  "
           f"deep shade {pct(sh)}, {(sh >= 0.05).mean():.0%} of images at 5% or more")
 
 
