@@ -6,12 +6,12 @@ smoothed with a mask-normalised Gaussian (sigma 3% of the shorter side, so pores
 noise drop out) and the spread of each channel is measured: the standard deviation of L*
 divided by mean L* and the standard deviations of a* and b*. Also per image with a lesion,
 its contrast: the mean Lab inside the lesion (eroded 3 px) minus that of the healthy skin
-12-40 px outside it, as CIEDE76 and as the signed a* (redness) and L* differences. And per image, how much of its healthy skin lies in deep
-shade: the share of those pixels (unsmoothed) whose L* is below SHADE (0.6) times the
-image's median skin L*, a fifth of the median's luminance or less (skin turning away from
-the light, a fold, a limb behind). Printed are the 10th / 50th / 90th percentiles over
-images, the mean skin colour, and the share of images with at least 5% of their skin in
-deep shade, for each folder.
+12-40 px outside it, as CIEDE76 and as the signed a* (redness) and L* differences. And
+per image, how much of its healthy skin lies in deep shade: the share of those pixels
+(unsmoothed) whose L* is below SHADE (0.6) times the image's median skin L*, a fifth of
+the median's luminance or less (skin turning away from the light, a fold, a limb behind).
+Printed are the 10th / 50th / 90th percentiles over images, the mean skin colour, and the
+share of images with at least 5% of their skin in deep shade, for each folder.
 
     python tools/skin_color_stats.py OUT_DIR [OUT_DIR ...] --real ../shared/realdev/fitz17k
 """
@@ -108,10 +108,11 @@ def report(name, rows):
     dLab = np.array([r[1] for r in rows if r[1] is not None]).reshape(-1, 3)
     dE = np.linalg.norm(dLab, axis=1)
     sh = np.array([r[2] for r in rows if r[2] is not None])
+    lesion = (f"lesion dE ({len(dE)}) {pct(dE)}  da* {pct(dLab[:, 1])}  dL* {pct(dLab[:, 0])}"
+              if len(dE) else "lesion dE (0) -")
     print(f"{name} ({len(v)} images): L std/mean {pct(v[:, 0])}  a* std {pct(v[:, 1])}  "
           f"b* std {pct(v[:, 2])}  mean Lab {v[:, 3].mean():.1f} {v[:, 4].mean():.1f} "
-          f"{v[:, 5].mean():.1f}  lesion dE ({len(dE)}) {pct(dE) if len(dE) else '-'}  "
-          f"da* {pct(dLab[:, 1]) if len(dE) else '-'}  dL* {pct(dLab[:, 0]) if len(dE) else '-'}  "
+          f"{v[:, 5].mean():.1f}  {lesion}  "
           f"deep shade {pct(sh)}, {(sh >= 0.05).mean():.0%} of images at 5% or more")
 
 
