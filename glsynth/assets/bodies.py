@@ -33,7 +33,7 @@ import numpy as np
 from .. import __version__
 from ..io.images import write_bytes
 from ..mesh import Mesh, SkinSurface
-from . import anatomy, hairflow, skin
+from . import anatomy, chromophores, hairflow, skin
 from .colour import fitzpatrick_from_ita
 
 log = logging.getLogger(__name__)
@@ -309,10 +309,11 @@ def _anny_version() -> str:
 
 @lru_cache(maxsize=1)
 def _code_hash() -> str:
-    """The source of the modules that make a body (not the shader's detail tiles, which
-    no body holds: changing them must not rebuild every cached body)."""
+    """The source of the modules that make a body (the chromophore model included: the
+    texture's mottling follows its melanin; not the shader's detail tiles, which no body
+    holds: changing them must not rebuild every cached body)."""
     h = hashlib.sha256()
-    for mod in (anatomy, skin, hairflow):
+    for mod in (anatomy, chromophores, skin, hairflow):   # skin's mottling uses the chromophore model
         h.update(Path(mod.__file__).read_bytes())
     h.update(Path(__file__).read_bytes())
     return h.hexdigest()[:16]
