@@ -393,7 +393,7 @@ def _csv_value(key, value):
 KINDS = tuple(PRESETS)
 # melanin volume fraction of a reference skin per Fitzpatrick type (chromophore model)
 # (mid-band ITA 65, 48, 35, 20, -8, -51 degrees at 2% blood)
-_REFERENCE_MELANIN = {1: 0.0074, 2: 0.03, 3: 0.051, 4: 0.082, 5: 0.166, 6: 0.29}
+_REFERENCE_MELANIN = {1: 0.025, 2: 0.048, 3: 0.065, 4: 0.084, 5: 0.126, 6: 0.225}
 
 
 class FieldLesion(Lesion):
