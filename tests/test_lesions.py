@@ -599,7 +599,8 @@ def test_the_chromophore_model_reaches_measured_skin_and_darkens_it_along_that_l
         assert error < 4.5 and inv.grid_blood[i] < 0.12, (ita, error, inv.grid_blood[i])
         errors.append(error)
         if ita > 15:
-            locus = (skin_lab(ita - 3) - lab)[2] / (skin_lab(ita - 3) - lab)[0]
+            darker = skin_lab(ita - 3) - lab
+            locus = darker[2] / darker[0]
             slope = melanin_slope(lab)[1]
             assert -0.7 < slope < 0 and abs(slope - locus) < 0.45, (ita, slope, locus)
     assert np.mean(errors[:len(grid)]) < 2.5, errors

@@ -313,7 +313,7 @@ def _code_hash() -> str:
     texture's mottling follows its melanin; not the shader's detail tiles, which no body
     holds: changing them must not rebuild every cached body)."""
     h = hashlib.sha256()
-    for mod in (anatomy, chromophores, skin, hairflow):   # skin's mottling uses the chromophore model
+    for mod in (anatomy, chromophores, skin, hairflow):
         h.update(Path(mod.__file__).read_bytes())
     h.update(Path(__file__).read_bytes())
     return h.hexdigest()[:16]
