@@ -55,10 +55,12 @@ def _rotation(rng):
 def test_open_box_floor_sees_its_opening(renderer, rng, trial):
     """The centre of an open box's floor receives the ambient light coming through the
     opening, the view factor 4 F(half/height, half/height); boxes of random proportions
-    and orientation. Many directions converge on it (the point sits a texel and a half
-    above the floor: up to +0.02). The pipeline's 128 are a coarse quadrature of the
-    narrow opening of deep boxes: in 1000 boxes they erred by 0.019 at the median, 0.069
-    at the 99th percentile and 0.090 at most (0.094 in one CI run)."""
+    and orientation. Many directions converge on it, from above: the point sits a texel
+    and a half above the floor, nearer the opening. In 600 boxes 600 directions erred by
+    +0.010 at the median and 0.042 at most (one CI run: +0.032); of 150 of them, none
+    below -0.006. The pipeline's 128 are a coarse quadrature of the narrow opening of deep
+    boxes: in 1000 boxes they erred by 0.019 at the median, 0.069 at the 99th percentile
+    and 0.090 at most (0.094 in one CI run)."""
     half = rng.uniform(0.3, 1.0)
     height = half * rng.uniform(0.5, 3.0)
     mesh, centre = _open_box(half, height, _rotation(rng))
@@ -66,7 +68,7 @@ def test_open_box_floor_sees_its_opening(renderer, rng, trial):
     expected = 4 * _corner_view_factor(r, r)
     fine = ao.bake_occlusion(renderer, mesh, directions=600, size=256)[centre]
     default = ao.bake_occlusion(renderer, mesh)[centre]
-    assert abs(fine - expected) < 0.03, (half, height, fine, expected)
+    assert -0.02 < fine - expected < 0.05, (half, height, fine, expected)
     assert abs(default - expected) < 0.12, (half, height, default, expected)
 
 
