@@ -1377,11 +1377,12 @@ def test_pigmented_patch_is_light_brown_on_fair_and_dark_skin(rng):
             skin = reference_skin(fitz, 128, np.random.default_rng(int(seed)))
             lab = cv2.cvtColor(apply_to_skin(f, skin).astype(np.float32) / 255, cv2.COLOR_RGB2LAB)
             drops[fitz].append(np.median(lab[ring][:, 0]) - np.median(lab[inner][:, 0]))
-    # (over 90 seeds the medians are 10.7 on type II, 13.2 on type V; before, ~22 on type
-    # II. Medians of 12 draws stay within 7.5-14.5 and 9.3-17.0 in 999 of 1000 sets; of 6
-    # draws, as this test took, type II's passed 16 in about 1 set in 200)
+    # (over 300 seeds the medians are 14.1 on type II, 15.2 on type V, 23.2 at most,
+    # since melanin's slope was fitted to measured skin (2026-12-06; 10.7 and 13.2 over 90
+    # before, ~22 on type II before the presets were made lighter). Medians of 12 draws
+    # stay within 9.0-19.7 and 9.7-19.9 in 9,999 of 10,000 sets)
     for fitz, d in drops.items():
-        assert 3 < min(d) and max(d) < 24 and 6 < np.median(d) < {2: 16, 5: 19}[fitz], (fitz, np.round(d, 1))
+        assert 3 < min(d) and max(d) < 26 and 6 < np.median(d) < 21, (fitz, np.round(d, 1))
 
 
 def test_inflammatory_patches_can_hold_unlabelled_islands_of_spared_skin(rng, monkeypatch):
