@@ -174,6 +174,10 @@ class LesionsConfig:
                       rule=Rule(_known_presets, lambda: f"names from {sorted(_presets())}"))
     resolution: int = key(512, "grid cells per side of a procedural condition",
                           within=between(64, 4096))
+    halo: float = key(0.35, "procedural lesions: each outline takes in the visible change round "
+                      "its lesion (an inflamed halo, a macerated rim, a faint fringe) out to this "
+                      "share of its radius, as annotators draw (0: the preset's own outline)",
+                      within=between(0, 2))
     decal_size: int = key(1024, "pixels per side of each lesion's decal, drawn over the body "
                           "texture at the lesion's own resolution (0: no decals)",
                           rule=Rule(lambda n: n == 0 or 64 <= n <= 4096, "0 or in [64, 4096]"))

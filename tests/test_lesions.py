@@ -331,6 +331,45 @@ def test_a_condition_applied_in_blocks_on_threads_equals_one_call(rng, monkeypat
     assert np.array_equal(blocks, whole), preset
 
 
+def _visible_change(fields):
+    """CIEDE76 of each grid cell of ``fields`` on the even skin the halo is judged on."""
+    from glsynth.assets import morphology as mo
+    from glsynth.assets.colour import srgb_to_lab
+    skin = np.empty(fields.mask.shape + (3,), np.uint8)
+    skin[:] = mo.HALO_SKIN
+    lab = srgb_to_lab(mo.apply_to_skin(fields, skin).reshape(-1, 3) / 255.0)
+    return np.linalg.norm(lab - srgb_to_lab(np.asarray(mo.HALO_SKIN)[None] / 255.0), axis=1).reshape(fields.mask.shape)
+
+
+@pytest.mark.parametrize("preset", ["ulcer", "kaposi_sarcoma", "inflammatory_patch"])
+def test_an_outline_takes_in_the_visible_halo_round_its_lesion(rng, preset):
+    """An annotator draws round all the visible change of a lesion: an ulcer's inflamed
+    halo and macerated rim, the haemosiderin round a Kaposi sarcoma. Without it
+    (halo_reach 0), over 60 seeds, a median 0.91 of the cells two out from an ulcer's
+    outline were visibly changed (0.09 at least: a faint halo) and 0.45 round a Kaposi
+    sarcoma; with it 0.02 and 0.08, 0.23 at most. The halo only adds to a preset's
+    outline, and skin left as it is inside a lesion (a patch's spared islands) stays out."""
+    from glsynth.assets import morphology as mo
+    before = []
+    for seed in rng.integers(2 ** 31, size=8 if preset == "ulcer" else 3):
+        traced = mo.make_condition(preset, [int(seed)], size=192, halo_reach=0)
+        drawn = mo.make_condition(preset, [int(seed)], size=192)
+        assert (traced.mask <= drawn.mask).all() and (drawn.instances[drawn.mask] > 0).all()
+        changed = _visible_change(drawn) > mo.HALO_VISIBLE + 2
+        share = []
+        for f in (traced, drawn):
+            ring = ndimage.binary_dilation(f.mask, iterations=2) & ~f.mask
+            share.append(changed[ring].mean())
+        before.append(share[0])
+        assert share[1] < 0.35 and share[1] <= share[0] + 0.02, (preset, int(seed), share)
+        # unchanged skin in the outline's holes: the halo, judged on a coarser grid, may
+        # reach a cell or two into one (over 60 draws of the patch at most 0.25 of it)
+        holes = ndimage.binary_fill_holes(traced.mask) & ~traced.mask & (_visible_change(drawn) < 1.0)
+        assert holes.sum() < 20 or drawn.mask[holes].mean() < 0.4, (preset, int(seed))
+    if preset == "ulcer":
+        assert np.mean(before) > 0.4, before
+
+
 def test_lentigo_maligna_is_a_large_flat_mottled_brown_macule(rng):
     """Lentigo maligna is flat, several centimetres across, lighter on average than a
     melanoma and mottled: blotches from light tan to dark brown, not one even shade (as a
@@ -348,9 +387,11 @@ def test_lentigo_maligna_is_a_large_flat_mottled_brown_macule(rng):
         # (over 150 seeds lentigo maligna spreads 1.09-2.3, median 1.5, and a pigmented
         # patch at most 0.36; a fresh draw in CI gave 0.92)
         assert spread(lm) > 0.8 and spread(lm) > 2 * spread(patch), (spread(lm), spread(patch))
-        # ill-defined: a broad rim of faint pigment outside the outline
+        # ill-defined: a broad rim of faint pigment outside the outline (which takes in
+        # the visible part of it; over 60 seeds 0.34-0.7 of the ring keeps 5% of the
+        # median pigment)
         ring = ndimage.binary_dilation(lm.mask, iterations=4) & ~lm.mask
-        assert np.mean(lm.f["melanin_add"][ring] > 0.1 * np.median(added)) > 0.3
+        assert np.mean(lm.f["melanin_add"][ring] > 0.05 * np.median(added)) > 0.25
 
 
 def test_melanoma_is_one_compact_irregular_lesion_not_an_ink_blot(rng):

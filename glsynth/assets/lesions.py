@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import ImageError, read_mask, read_rgb
 from .colour import ita_range, shades_of_gray
-from .morphology import PRESETS, apply_to_skin, make_condition
+from .morphology import HALO_REACH, PRESETS, apply_to_skin, make_condition
 
 log = logging.getLogger(__name__)
 
@@ -449,15 +449,17 @@ class ProceduralLesions(Sequence):
     """``n`` seeded procedural conditions (FieldLesion), made when indexed: presets
     from ``kinds`` (default: all of KINDS), each shown on a reference skin of a
     Fitzpatrick type drawn from ``fitzpatrick`` (a type, a list, or None for any) on a
-    ``size``-cell grid. Lesion i depends only on (seed, i), so a longer set starts with
-    the shorter one.
+    ``size``-cell grid, each outline taking in the visible halo round its lesion out to
+    ``halo`` of its radius (morphology.make_condition). Lesion i depends only on (seed,
+    i), so a longer set starts with the shorter one.
 
     The presets come in rounds: each run of ``len(kinds)`` lesions holds every preset
     once, in an order shuffled by (seed, round). A set smaller than a round (a run of
     2 bodies x 3 lesions holds 6) thus draws different presets for different seeds,
     rather than always the first ones listed."""
 
-    def __init__(self, n: int, seed: int = 0, size: int = 256, kinds=None, fitzpatrick=None):
+    def __init__(self, n: int, seed: int = 0, size: int = 256, kinds=None, fitzpatrick=None,
+                 halo=HALO_REACH):
         kinds = list(KINDS if not kinds else ([kinds] if isinstance(kinds, str) else kinds))
         bad = [k for k in kinds if k not in KINDS]
         if bad:
@@ -468,6 +470,7 @@ class ProceduralLesions(Sequence):
         for t in self.types:
             ita_range(t)  # validates 1..6
         self.n, self.seed, self.size, self.kinds = int(n), int(seed), int(size), kinds
+        self.halo = float(halo)
 
     def __len__(self):
         return self.n
@@ -489,7 +492,7 @@ class ProceduralLesions(Sequence):
         rng = np.random.default_rng([self.seed, i])
         kind = self.kind(i)
         fitz = int(self.types[rng.integers(len(self.types))])
-        return _field_lesion(kind, self.seed, i, self.size, fitz)
+        return _field_lesion(kind, self.seed, i, self.size, fitz, self.halo)
 
     def spread(self, lesion, copy: int):
         """Another lesion of the same condition as ``lesion`` (one of this set), for a
@@ -497,13 +500,13 @@ class ProceduralLesions(Sequence):
         >= 1; copy 0 is ``lesion`` itself)."""
         m = lesion.meta
         return _field_lesion(m["preset"], int(m["seed"]), int(m["index"]), int(m["grid"]),
-                             int(m["fitzpatrick"]), copy)
+                             int(m["fitzpatrick"]), float(m["halo"]), copy)
 
 
-def _field_lesion(kind, seed, index, grid, fitz, copy=0):
-    fields = _condition(kind, seed, index, grid, copy)
+def _field_lesion(kind, seed, index, grid, fitz, halo, copy=0):
+    fields = _condition(kind, seed, index, grid, halo, copy)
     meta = {"kind": kind, "preset": kind, "seed": seed, "index": index, "fitzpatrick": fitz,
-            "grid": grid, "extent_mm": round(fields.extent_mm, 2),
+            "grid": grid, "halo": halo, "extent_mm": round(fields.extent_mm, 2),
             "instances": int(fields.instances.max()), "params": fields.params}
     name = f"procedural-{kind}-{seed}-{index}"
     if copy:
@@ -513,18 +516,18 @@ def _field_lesion(kind, seed, index, grid, fitz, copy=0):
 
 
 @functools.lru_cache(maxsize=16)
-def _condition(preset: str, seed: int, index: int, grid: int, copy: int = 0):
+def _condition(preset: str, seed: int, index: int, grid: int, halo: float, copy: int = 0):
     """Procedural lesion ``index`` of a run's ``seed`` (``copy`` >= 1: another draw of its
     preset, a lesion of the same eruption). Cached: a worker pastes a body's lesions and
     builds their decals moments apart (~0.1-2 s each to make; ~16 MB at 512)."""
     key = [seed, index] if copy == 0 else [seed, index, 0x65727570, copy]
-    return make_condition(preset, key, size=grid)
+    return make_condition(preset, key, size=grid, halo_reach=halo)
 
 
 def procedural_lesions(n: int, seed: int = 0, size: int = 256, kinds=None,
-                       fitzpatrick=None) -> list[Lesion]:
-    """A list of ``ProceduralLesions(n, seed, size, kinds, fitzpatrick)``."""
-    return list(ProceduralLesions(n, seed, size, kinds, fitzpatrick))
+                       fitzpatrick=None, halo=HALO_REACH) -> list[Lesion]:
+    """A list of ``ProceduralLesions(n, seed, size, kinds, fitzpatrick, halo)``."""
+    return list(ProceduralLesions(n, seed, size, kinds, fitzpatrick, halo))
 
 
 def lesion_from_meta(meta: dict) -> Lesion:
@@ -533,7 +536,7 @@ def lesion_from_meta(meta: dict) -> Lesion:
     if meta.get("preset"):
         copy = int(meta.get("copy", 0))
         fields = _condition(meta["preset"], int(meta["seed"]), int(meta["index"]),
-                            int(meta.get("grid", 256)), copy)
+                            int(meta.get("grid", 256)), float(meta.get("halo", 0.0)), copy)
         name = f"procedural-{meta['preset']}-{meta['seed']}-{meta['index']}" + (f"-{copy}" if copy else "")
         return FieldLesion(fields, name, meta, meta.get("fitzpatrick", 3))
     return load_lesion(meta["image_path"], meta["mask_path"], meta.get("id"), meta,

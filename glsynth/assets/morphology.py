@@ -301,6 +301,7 @@ class Builder:
         self.f = {k: np.full((n, n), v, np.float32) for k, v in NEUTRAL.items()}
         self.mask = np.zeros((n, n), bool)
         self.instances = np.zeros((n, n), np.uint16)
+        self.spared = np.zeros((n, n), bool)    # skin inside a lesion that its outline leaves out
         self._cell_cache = {}
 
     def weight(self, sd, border, kind="sharp"):
@@ -1217,6 +1218,7 @@ def _spared_islands(b, rng, sd, r, count):
         isd = c.shape("round", ri, centre=(c.x[row, col], c.y[row, col]), aspect=rng.uniform(0.5, 1.0),
                       irregular=0.3, warp=0.2)
         np.maximum(spare, b.weight(isd, ri * 0.3), out=spare)
+    b.spared |= spare > 0.5
     return spare
 
 
@@ -1641,10 +1643,21 @@ ERUPTIVE = ("psoriasis", "eczema", "urticaria", "pityriasis_rosea", "inflammator
 # grid side / condition extent, tried in turn until the outline stays off the grid's edge
 GRID_MARGINS = (1.4, 1.9, 2.6, 3.6)
 
+# The change round a lesion that its outline takes in: colour visibly changed (CIEDE76
+# above HALO_VISIBLE on an even type III skin, scale and crust included), connected to
+# the lesion and within HALO_REACH of its equivalent radius. The dev set's annotators
+# drew round an ulcer's inflamed halo and macerated rim; outlines that left them out
+# taught models to call the faint edge of real lesions skin.
+HALO_VISIBLE = 5.0
+HALO_REACH = 0.35
+HALO_SKIN = (196, 150, 124)
 
-def make_condition(preset: str, seed, size=512, extent_mm=None) -> LesionFields:
+
+def make_condition(preset: str, seed, size=512, extent_mm=None, halo_reach=HALO_REACH) -> LesionFields:
     """One seeded condition of ``preset`` on a size x size grid; its extent is drawn from
-    the preset's range unless given (mm; the grid has a margin around it)."""
+    the preset's range unless given (mm; the grid has a margin around it). Each lesion's
+    mask takes in the visible change round it up to ``halo_reach`` of its radius
+    (``_take_in_halo``; 0: only what the preset outlined)."""
     if preset not in PRESETS:
         raise ValueError(f"unknown lesion preset {preset!r}; choose from {sorted(PRESETS)}")
     build, (lo, hi) = PRESETS[preset]
@@ -1670,11 +1683,49 @@ def make_condition(preset: str, seed, size=512, extent_mm=None) -> LesionFields:
     if not b.mask.any():      # a draw that left nothing outlined: the strongest change
         strength = np.abs(b.f["blood"] - 1) + np.abs(b.f["melanin"] - 1) + b.f["scale"] + b.f["crust"]
         b.outline(strength / max(strength.max(), 1e-6), 0.5)
+    fields = LesionFields(b.f, b.mask, b.instances, canvas.extent, preset=preset,
+                          scale_rgb=tuple(extra.pop("scale_rgb", SCALE_COLOURS["white"])),
+                          crust_rgb=tuple(extra.pop("crust_rgb", CRUST_COLOURS["honey"])),
+                          params={"extent_mm": round(extent, 2), **{k: v for k, v in extra.items()}})
+    if halo_reach > 0:       # (not into the band where the grid fades the fields out)
+        _take_in_halo(b, fields, halo_reach, taper >= 1)
     _relabel(b)
-    return LesionFields(b.f, b.mask, b.instances, canvas.extent, preset=preset,
-                        scale_rgb=tuple(extra.pop("scale_rgb", SCALE_COLOURS["white"])),
-                        crust_rgb=tuple(extra.pop("crust_rgb", CRUST_COLOURS["honey"])),
-                        params={"extent_mm": round(extent, 2), **{k: v for k, v in extra.items()}})
+    fields.mask, fields.instances = b.mask, b.instances
+    return fields
+
+
+def _take_in_halo(b, fields, reach, allowed, step=4):
+    """Add to each lesion's mask the visible change that touches it (``HALO_VISIBLE``)
+    within ``reach`` of its equivalent radius: an inflamed halo, a macerated rim, the
+    faint fringe of a patch. Spared islands stay out, nothing leaves ``allowed``. The
+    colour is judged on a grid ``step`` times coarser (a halo is smooth)."""
+    from .colour import srgb_to_lab
+    coarse = LesionFields({k: v[step // 2::step, step // 2::step] for k, v in fields.f.items()},
+                          b.mask[step // 2::step, step // 2::step], b.instances[step // 2::step, step // 2::step],
+                          fields.extent_mm, fields.scale_rgb, fields.crust_rgb)
+    skin = np.empty(coarse.mask.shape + (3,), np.uint8)
+    skin[:] = HALO_SKIN
+    changed = srgb_to_lab(apply_to_skin(coarse, skin).reshape(-1, 3) / 255.0) - srgb_to_lab(
+        np.asarray(HALO_SKIN, np.float64)[None] / 255.0)
+    visible = (np.linalg.norm(changed, axis=1) > HALO_VISIBLE).reshape(coarse.mask.shape).astype(np.uint8)
+    n = b.mask.shape[0]
+    visible = cv2.resize(visible.astype(np.float32), (n, n), interpolation=cv2.INTER_LINEAR) > 0.5
+    candidate = (visible | b.mask) & allowed & ~b.spared
+    lab, _ = ndimage.label(candidate)
+    touching = np.unique(lab[b.mask])
+    candidate &= np.isin(lab, touching[touching > 0]) & ~b.mask
+    if not candidate.any():
+        return
+    dist, (iy, ix) = ndimage.distance_transform_edt(~b.mask, return_indices=True)
+    nearest = b.instances[iy, ix]
+    radius = np.sqrt(np.bincount(b.instances.ravel())[nearest] / np.pi)
+    add = candidate & (dist <= reach * radius)
+    # skin a halo closes round (between a lesion and its rim) is drawn over too; the
+    # lesion's own holes (spared islands, an annulus's clear centre) stay holes
+    grown = b.mask | add
+    add |= ndimage.binary_fill_holes(grown) & ~grown & ~ndimage.binary_fill_holes(b.mask) & allowed
+    b.instances[add] = nearest[add]
+    b.mask |= add
 
 
 def _relabel(b, min_mm2=0.05):

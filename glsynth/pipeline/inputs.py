@@ -21,7 +21,7 @@ def lesion_source(cfg: Config):
     if le.source == "procedural":
         from ..assets.lesions import ProceduralLesions
         n = max(le.per_body * (cfg.bodies.first + cfg.bodies.count), 1)  # dealt by body index
-        return ProceduralLesions(n, seed=cfg.seed, size=le.resolution, kinds=le.kinds)
+        return ProceduralLesions(n, seed=cfg.seed, size=le.resolution, kinds=le.kinds, halo=le.halo)
     return assets.load_lesions(le.source, layout=le.layout, colour_constancy=le.colour_constancy,
                                min_size=le.min_size, max_mask_fraction=le.max_mask_fraction)
 
