@@ -331,16 +331,6 @@ def test_a_condition_applied_in_blocks_on_threads_equals_one_call(rng, monkeypat
     assert np.array_equal(blocks, whole), preset
 
 
-def _visible_change(fields):
-    """CIEDE76 of each grid cell of ``fields`` on the even skin the halo is judged on."""
-    from glsynth.assets import morphology as mo
-    from glsynth.assets.colour import srgb_to_lab
-    skin = np.empty(fields.mask.shape + (3,), np.uint8)
-    skin[:] = mo.HALO_SKIN
-    lab = srgb_to_lab(mo.apply_to_skin(fields, skin).reshape(-1, 3) / 255.0)
-    return np.linalg.norm(lab - srgb_to_lab(np.asarray(mo.HALO_SKIN)[None] / 255.0), axis=1).reshape(fields.mask.shape)
-
-
 @pytest.mark.parametrize("preset", ["ulcer", "kaposi_sarcoma", "inflammatory_patch"])
 def test_an_outline_takes_in_the_visible_halo_round_its_lesion(rng, preset):
     """An annotator draws round all the visible change of a lesion: an ulcer's inflamed
@@ -355,7 +345,8 @@ def test_an_outline_takes_in_the_visible_halo_round_its_lesion(rng, preset):
         traced = mo.make_condition(preset, [int(seed)], size=192, halo_reach=0)
         drawn = mo.make_condition(preset, [int(seed)], size=192)
         assert (traced.mask <= drawn.mask).all() and (drawn.instances[drawn.mask] > 0).all()
-        changed = _visible_change(drawn) > mo.HALO_VISIBLE + 2
+        change = mo.visible_change(drawn)
+        changed = change > mo.HALO_VISIBLE + 2
         share = []
         for f in (traced, drawn):
             ring = ndimage.binary_dilation(f.mask, iterations=2) & ~f.mask
@@ -364,7 +355,7 @@ def test_an_outline_takes_in_the_visible_halo_round_its_lesion(rng, preset):
         assert share[1] < 0.35 and share[1] <= share[0] + 0.02, (preset, int(seed), share)
         # unchanged skin in the outline's holes: the halo, judged on a coarser grid, may
         # reach a cell or two into one (over 60 draws of the patch at most 0.25 of it)
-        holes = ndimage.binary_fill_holes(traced.mask) & ~traced.mask & (_visible_change(drawn) < 1.0)
+        holes = ndimage.binary_fill_holes(traced.mask) & ~traced.mask & (change < 1.0)
         assert holes.sum() < 20 or drawn.mask[holes].mean() < 0.4, (preset, int(seed))
     if preset == "ulcer":
         assert np.mean(before) > 0.4, before

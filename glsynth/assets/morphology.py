@@ -39,7 +39,7 @@ from scipy import ndimage
 
 from ..sampling import sample_bilinear
 from .chromophores import skin_inverse, skin_rgb_fast
-from .colour import lab_to_srgb
+from .colour import lab_to_srgb, srgb_to_lab
 
 FIELDS = ("melanin", "melanin_add", "blood", "blood_add", "oxygen", "dermal_melanin", "bilirubin",
           "scatter", "epidermis", "scale", "crust", "crust_dark", "height", "gloss", "detail")
@@ -1694,22 +1694,27 @@ def make_condition(preset: str, seed, size=512, extent_mm=None, halo_reach=HALO_
     return fields
 
 
+def visible_change(fields: LesionFields) -> np.ndarray:
+    """CIEDE76 by which ``fields`` change the even skin a halo is judged on
+    (``HALO_SKIN``), per grid cell."""
+    skin = np.empty(fields.mask.shape + (3,), np.uint8)
+    skin[:] = HALO_SKIN
+    lab = srgb_to_lab(apply_to_skin(fields, skin).reshape(-1, 3) / 255.0)
+    return np.linalg.norm(lab - srgb_to_lab(np.asarray(HALO_SKIN, np.float64)[None] / 255.0),
+                          axis=1).reshape(fields.mask.shape)
+
+
 def _take_in_halo(b, fields, reach, allowed, step=4):
     """Add to each lesion's mask the visible change that touches it (``HALO_VISIBLE``)
     within ``reach`` of its equivalent radius: an inflamed halo, a macerated rim, the
     faint fringe of a patch. Spared islands stay out, nothing leaves ``allowed``. The
     colour is judged on a grid ``step`` times coarser (a halo is smooth)."""
-    from .colour import srgb_to_lab
     coarse = LesionFields({k: v[step // 2::step, step // 2::step] for k, v in fields.f.items()},
                           b.mask[step // 2::step, step // 2::step], b.instances[step // 2::step, step // 2::step],
                           fields.extent_mm, fields.scale_rgb, fields.crust_rgb)
-    skin = np.empty(coarse.mask.shape + (3,), np.uint8)
-    skin[:] = HALO_SKIN
-    changed = srgb_to_lab(apply_to_skin(coarse, skin).reshape(-1, 3) / 255.0) - srgb_to_lab(
-        np.asarray(HALO_SKIN, np.float64)[None] / 255.0)
-    visible = (np.linalg.norm(changed, axis=1) > HALO_VISIBLE).reshape(coarse.mask.shape).astype(np.uint8)
+    visible = (visible_change(coarse) > HALO_VISIBLE).astype(np.float32)
     n = b.mask.shape[0]
-    visible = cv2.resize(visible.astype(np.float32), (n, n), interpolation=cv2.INTER_LINEAR) > 0.5
+    visible = cv2.resize(visible, (n, n), interpolation=cv2.INTER_LINEAR) > 0.5
     candidate = (visible | b.mask) & allowed & ~b.spared
     lab, _ = ndimage.label(candidate)
     touching = np.unique(lab[b.mask])
@@ -1783,7 +1788,6 @@ def apply_to_skin(fields: LesionFields, skin_rgb_uint8: np.ndarray, at=None) -> 
                           np.clip(blood * vals["blood"] + vals["blood_add"], 0, 0.7),
                           vals["oxygen"], vals["bilirubin"], vals["dermal_melanin"], vals["epidermis"],
                           vals["scatter"])
-    from .colour import srgb_to_lab
     lab = srgb_to_lab(model) + residual * np.clip(vals["epidermis"], 0.3, 1.0)[:, None]
     out = lab_to_srgb(lab)
     # thick, old crust darkens towards the brown-red of dried blood and serum
