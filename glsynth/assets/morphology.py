@@ -292,6 +292,11 @@ def arrange(canvas, kind, n, spread_mm, min_gap_mm):
 
 
 # ---- composing a condition -------------------------------------------------------------------
+# inflammatory erythema's texture (Builder.stippling): blotches and puncta, mm across
+STIPPLE_BLOTCH_MM = 3.0
+STIPPLE_DOT_MM = 0.35
+INFLAMED = 0.8          # its strength in the dermatoses' erythema
+
 class Builder:
     """Accumulates a condition's fields on a Canvas."""
 
@@ -303,6 +308,7 @@ class Builder:
         self.instances = np.zeros((n, n), np.uint16)
         self.spared = np.zeros((n, n), bool)    # skin inside a lesion that its outline leaves out
         self._cell_cache = {}
+        self._stippling = None
 
     def weight(self, sd, border, kind="sharp"):
         """Coverage 0..1 from a signed distance: sharp (a pixel or two), ill-defined
@@ -328,14 +334,31 @@ class Builder:
         return LesionFields(self.f, self.mask, self.instances, extent, **kw)
 
     # secondary changes
-    def erythema(self, w, amount, oxygen=0.8):
+    def erythema(self, w, amount, oxygen=0.8, stipple=0.0):
         """Dilated papillary vessels: ``amount`` x 10% blood volume added (negative:
-        blanching, a factor on the skin's own blood)."""
+        blanching, a factor on the skin's own blood). ``stipple`` (0..1) lays the added
+        blood out as inflamed skin shows it up close (``stippling``), its mean kept."""
         if amount >= 0:
+            if stipple > 0:
+                w = w * (1 + stipple * (self.stippling() - 1))
             self.f["blood_add"] += w * amount * 0.1
         else:
             self.mix("blood", w, 1 + amount)
         self.mix("oxygen", w, oxygen)
+
+    def stippling(self):
+        """Mean-1 factor on an inflammatory erythema: seen up close, the redness of a
+        dermatitis is not an even wash but blotches a few millimetres across (dermal
+        vessel clusters) dotted with puncta a few tenths of a millimetre apart (the
+        capillary loops of the dermal papillae and the vessels round follicles). One
+        pattern per condition, so overlapping patches share it."""
+        if self._stippling is None:
+            c = self.c
+            blotch = c.noise(STIPPLE_BLOTCH_MM, 2)
+            dots = c.noise(max(STIPPLE_DOT_MM, 1.5 * c.px), 1)
+            factor = np.exp(0.35 * blotch) * (0.55 + 0.9 * smoothstep(0.0, 1.2, dots))
+            self._stippling = (factor / factor.mean()).astype(np.float32)
+        return self._stippling
 
     def scale(self, w, coverage, flake_mm, colour="white"):
         """Keratin flakes over ``w``: plates about ``flake_mm`` wide (a Voronoi
@@ -516,7 +539,7 @@ def _plaque(b, rng, R, shape, scale_colour, erythema, border="sharp", scale_cov=
     sd = c.shape(shape, R, aspect=rng.uniform(0.55, 1.0), irregular=0.15, warp=0.12,
                  width=R * rng.uniform(0.3, 0.5))
     w = b.weight(sd, R * 0.25, border)
-    b.erythema(w * (0.8 + 0.2 * c.noise(R / 3, 2)), erythema)
+    b.erythema(w * (0.8 + 0.2 * c.noise(R / 3, 2)), erythema, stipple=INFLAMED)
     b.f["height"] += rng.uniform(0.2, 0.6) * smoothstep(-R * 0.05, R * 0.2, sd)
     col = b.scale(w * smoothstep(0, R * 0.3, sd + R * 0.1), scale_cov, flake, scale_colour)
     b.f["melanin"] *= 1 + 0.5 * w      # post-inflammatory darkening shows on darker skin
@@ -540,7 +563,7 @@ def _plaque_at(b, rng, r, centre, scale_colour, erythema, merge=False, border="s
     c = b.c
     sd = c.shape("oval", r, centre=centre, aspect=rng.uniform(0.6, 1.0), irregular=0.15, warp=0.1)
     w = b.weight(sd, r * 0.3, border)
-    b.erythema(w, erythema)
+    b.erythema(w, erythema, stipple=INFLAMED)
     # merging plaques make one plateau (their scale, added next, still piles up)
     b.f["height"] = np.maximum(b.f["height"], rng.uniform(0.2, 0.5) * smoothstep(-r * 0.05, r * 0.2, sd))
     col = b.scale(w * smoothstep(0, r * 0.3, sd + r * 0.1), scale_cov, flake, scale_colour)
@@ -553,7 +576,7 @@ def _eczema(b, rng, R):
     sd = c.shape("round", R, aspect=rng.uniform(0.5, 1.0), irregular=0.3, warp=0.25)
     w = b.weight(sd, R * 0.35, "ill-defined")
     w = w * (0.7 + 0.3 * c.noise(R / 4, 2))
-    b.erythema(w, rng.uniform(1.5, 3.0))
+    b.erythema(w, rng.uniform(1.5, 3.0), stipple=INFLAMED)
     # papulovesicles, excoriations, crust, fine scale, lichenified skin lines
     pap = smoothstep(0.5, 1.9, c.noise(max(0.4, R / 40), 1)) ** 2 * w   # domed, closely set
     b.f["height"] += 0.2 * pap
@@ -587,7 +610,7 @@ def _tinea(b, rng, R):
     disc = c.shape("round", R + width / 2, irregular=0.0, warp=0.0, angle=0.0)
     w_ring = b.weight(ring, width * 0.8, "ill-defined")
     w_disc = b.weight(disc, width * 0.5)
-    b.erythema(w_ring, rng.uniform(2.5, 4.0))
+    b.erythema(w_ring, rng.uniform(2.5, 4.0), stipple=INFLAMED)
     b.erythema(w_disc * 0.3, 0.6)                          # a clearer, faintly pink centre
     b.f["height"] += 0.15 * w_ring
     b.scale(w_ring, 0.6, 0.5, "white")
@@ -817,7 +840,7 @@ def _pityriasis_rosea(b, rng, R):
         w = b.weight(sd, r * 0.2, "ill-defined")
         # the edge is the reddest; the centre clears towards the skin's own colour
         ring = 1 - 0.75 * smoothstep(r * 0.1, r * 0.55, sd)
-        b.erythema(w * ring, salmon, 0.95)
+        b.erythema(w * ring, salmon, 0.95, stipple=INFLAMED)
         b.f["melanin"] *= 1 + 0.2 * w
         # a fine collarette just inside the edge, free towards the centre: a thin
         # translucent rim, not flakes (at this size they were a speckle of dots)
@@ -849,7 +872,7 @@ def _ulcer(b, rng, R):
     depth, slope = {"venous": (rng.uniform(0.3, 1.0), rng.uniform(0.15, 0.35)),
                     "pressure": (rng.uniform(0.8, 2.5), rng.uniform(0.06, 0.2)),
                     "pyoderma": (rng.uniform(1.0, 3.0), rng.uniform(0.02, 0.06))}[kind]
-    b.erythema(w_peri, rng.uniform(0.4, 1.5))       # from a faint pink rim to cellulitis red
+    b.erythema(w_peri, rng.uniform(0.4, 1.5), stipple=INFLAMED)  # from a faint pink rim to cellulitis red
     # periwound darkening, in patches: a uniform 1.8x band left type VI skin a slate ring
     # (L* 14, chroma 10 round skin at 27 and 27), where dark skin round a real ulcer is a
     # few L* darker and keeps its colour
@@ -932,7 +955,8 @@ def _lupus(b, rng, R):
     # how burnt out the centre is: in an active lesion it stays red; an old one's scar is
     # fibrosed (dense collagen scatters: ivory to porcelain white) with little blood left
     scarred = rng.uniform(0.0, 1.0)
-    b.erythema(w * (1 - centre * (0.4 + 0.45 * scarred)), rng.uniform(2.0, 3.5), oxygen=rng.uniform(0.55, 0.7))
+    b.erythema(w * (1 - centre * (0.4 + 0.45 * scarred)), rng.uniform(2.0, 3.5), oxygen=rng.uniform(0.55, 0.7),
+               stipple=INFLAMED)
     b.mix("scatter", w * centre, 1 + 0.35 * scarred)
     b.mix("melanin", rim, rng.uniform(1.5, 2.2))                         # hyperpigmented rim
     # pigment left in the scar: islands, never most of it (a plain noise threshold could
@@ -1156,7 +1180,7 @@ def _lichen_planus(b, rng, R):
         # polygonal: a few straight-ish sides, not a star's points
         sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.7, 1.0), irregular=0.2, warp=0.03)
         w = b.weight(sd, r * 0.15)
-        b.erythema(w, rng.uniform(2.0, 3.5), oxygen=0.45)
+        b.erythema(w, rng.uniform(2.0, 3.5), oxygen=0.45, stipple=INFLAMED)
         b.f["melanin"] *= 1 + rng.uniform(0.1, 0.4) * w
         b.f["dermal_melanin"] += w * rng.uniform(0.005, 0.02)
         # flat-topped; merging papules make one plateau, not stacked ones
@@ -1182,6 +1206,7 @@ def _inflammatory_patch(b, rng, R):
     n = int(rng.choice([1, 1, 2, 3, 4]))
     border = str(rng.choice(["ill-defined", "sharp"], p=[0.6, 0.4]))
     oxygen = rng.uniform(0.55, 0.85)
+    stipple = rng.uniform(0.5, 1.0)
     islands = int(rng.integers(1, 5)) if rng.random() < 0.3 else 0
     spared = 0.0
     for i, p in enumerate(arrange(c, "grouped", n, R * 0.6, R * 0.3)):
@@ -1192,7 +1217,7 @@ def _inflammatory_patch(b, rng, R):
             spared = _spared_islands(b, rng, sd, r, islands)
         w *= 1 - spared
         inside = 0.65 + 0.35 * smoothstep(-1.0, 1.0, c.noise(r / 3, 3))    # uneven redness
-        b.erythema(w * inside, rng.uniform(1.2, 3.0), oxygen=oxygen)
+        b.erythema(w * inside, rng.uniform(1.2, 3.0), oxygen=oxygen, stipple=stipple)
         b.f["melanin"] *= 1 + rng.uniform(0.0, 0.6) * w
         b.f["height"] += rng.uniform(0.0, 0.12) * w
         b.outline(w, 0.35, instance=1)
@@ -1345,7 +1370,7 @@ def _herpes(b, rng, R):
     for q, rc in zip(centres, sizes):
         base = c.shape("round", rc, centre=q, aspect=rng.uniform(0.6, 1.0), irregular=0.2, warp=0.06)
         w = b.weight(base, rc * 0.3, "ill-defined")
-        b.erythema(w, rng.uniform(2.0, 3.5))
+        b.erythema(w, rng.uniform(2.0, 3.5), stipple=INFLAMED)
         stage = str(rng.choice(["vesicles", "pustules", "crusted"], p=[0.5, 0.2, 0.3]))
         stages.append(stage)
         r_lo, r_hi = 0.4, float(np.clip(rc * 0.15, 0.6, 1.5))
@@ -1472,7 +1497,7 @@ def _actinic_keratosis(b, rng, R):
         r = R * (rng.uniform(0.3, 0.5) if i == 0 else rng.uniform(0.12, 0.3))
         sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.5, 1.0), irregular=0.3, warp=0.2)
         w = b.weight(sd, r * 0.4, "ill-defined")
-        b.erythema(w * (0.7 + 0.3 * c.noise(r / 2, 2)), rng.uniform(1.0, 2.5))
+        b.erythema(w * (0.7 + 0.3 * c.noise(r / 2, 2)), rng.uniform(1.0, 2.5), stipple=INFLAMED)
         b.f["melanin"] *= 1 + rng.uniform(0.0, 0.5) * w
         scaly = np.maximum(scaly, w * smoothstep(-r * 0.1, r * 0.3, sd))
         b.f["height"] += rng.uniform(0.0, 0.15) * w
