@@ -911,17 +911,18 @@ def test_inflamed_erythema_is_blotched_and_stippled_with_its_mean_kept(rng, exte
 
 @pytest.mark.parametrize("preset", ["inflammatory_patch", "psoriasis", "tinea", "pityriasis_rosea"])
 def test_dermatoses_are_not_an_even_wash_of_red(rng, preset):
-    """Up close a dermatitis' redness is mottled and dotted. The blood added inside the
-    outline varies under a millimetre by a share of its mean: with the stippling (40
-    draws) at least 0.26 in the inflammatory patch and 0.32-0.37 in the others; as an even
-    wash it was 0.12, 0.21, 0.17 and 0.25 at most."""
+    """Up close a dermatitis' redness is mottled and dotted: the blood added inside the
+    outline varies under a millimetre by a share of its mean. Over 40 draws each, with
+    the stippling its median was 0.37-0.43 (0.22 the least, in an inflammatory patch); as
+    an even wash it was 0.10-0.23 (0.34 the most). A mean over six draws above 0.27
+    fails an even wash and passes the stippling but for about one run in 10,000."""
     from glsynth.assets.morphology import make_condition
     spread = []
-    for seed in rng.integers(2 ** 31, size=4):
+    for seed in rng.integers(2 ** 31, size=6):
         f = make_condition(preset, [int(seed)], size=256)
         inside = f.mask & (f.f["blood_add"] > 0.05)
         spread.append(_fine_variation(f.f["blood_add"], inside, f.mm_per_px))
-    assert min(spread) > 0.23, spread
+    assert np.mean(spread) > 0.27 and min(spread) > 0.15, spread
 
 def test_eczema_excoriations_lie_under_dark_dried_blood(rng):
     """Scratches are crusted with dark dried blood along their length, not raw orange
