@@ -924,6 +924,7 @@ def test_dermatoses_are_not_an_even_wash_of_red(rng, preset):
         spread.append(_fine_variation(f.f["blood_add"], inside, f.mm_per_px))
     assert np.mean(spread) > 0.27 and min(spread) > 0.15, spread
 
+
 def test_eczema_excoriations_lie_under_dark_dried_blood(rng):
     """Scratches are crusted with dark dried blood along their length, not raw orange
     erosions showing between a few lumps of crust."""

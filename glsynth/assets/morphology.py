@@ -1711,7 +1711,7 @@ def make_condition(preset: str, seed, size=512, extent_mm=None, halo_reach=HALO_
     fields = LesionFields(b.f, b.mask, b.instances, canvas.extent, preset=preset,
                           scale_rgb=tuple(extra.pop("scale_rgb", SCALE_COLOURS["white"])),
                           crust_rgb=tuple(extra.pop("crust_rgb", CRUST_COLOURS["honey"])),
-                          params={"extent_mm": round(extent, 2), **{k: v for k, v in extra.items()}})
+                          params={"extent_mm": round(extent, 2), **extra})
     if halo_reach > 0:       # (not into the band where the grid fades the fields out)
         _take_in_halo(b, fields, halo_reach, taper >= 1)
     _relabel(b)
