@@ -511,9 +511,9 @@ def _melanoma(b, rng, R):
 def _lentigo_maligna(b, rng, R):
     """Lentigo maligna (melanoma in situ on chronically sun-damaged skin, and the solar
     lentigines it is mistaken for): a large flat macule, several centimetres, its outline
-    a ragged coast that fades out in places; mottled in many shades from light tan to
-    dark brown, in blotches of a few millimetres to a centimetre that overlap unevenly,
-    with skip areas of paler skin inside, darker flecks and rings round follicle openings
+    a ragged coast that fades out in places; a tan stain mottled in shades up to mid
+    brown, in blotches of a few millimetres to a centimetre that overlap unevenly,
+    with skip areas of paler skin inside, faint flecks and rings round follicle openings
     (which stay pale), and grey where pigment has dropped into the dermis. Flat: the
     skin's markings run through it unchanged."""
     c = b.c
@@ -522,12 +522,14 @@ def _lentigo_maligna(b, rng, R):
     fade = smoothstep(-1.0, 1.0, c.noise(R / 1.5, 2))            # where the border fades out
     w = b.weight(sd, R * (0.12 + 0.35 * fade), "ill-defined")
     blotch = smoothstep(-1.5, 2.2, c.noise(R / 3, 2) + 0.5 * c.noise(max(0.8, R / 8), 2))
-    skip = 0.3 + 0.7 * smoothstep(-2.2, -0.6, c.noise(R / 4, 2))   # paler skin left inside
-    base = rng.uniform(0.03, 0.06)
-    dark = rng.uniform(0.07, 0.18)
+    skip = 0.55 + 0.45 * smoothstep(-2.2, -0.6, c.noise(R / 4, 2))  # paler skin left inside
+    # from a faint stain (the way it is most often missed) to mid brown; skip areas
+    # halve the pigment at most (emptied, they read as round pale holes)
+    base = rng.uniform(0.015, 0.06)
+    dark = rng.uniform(0.04, 0.16)
     follicle = c.noise(max(0.3, R / 40), 1)                        # rings round follicles
     flecks = smoothstep(0.4, 1.0, follicle) * (1 - smoothstep(1.3, 1.7, follicle)) * blotch
-    b.f["melanin_add"] += w * skip * (base + dark * blotch + 0.08 * flecks)
+    b.f["melanin_add"] += w * skip * (base + dark * blotch + 0.03 * flecks)
     grey = smoothstep(1.0, 2.0, c.noise(R / 4, 2)) * w
     b.f["dermal_melanin"] += 0.012 * grey
     b.outline(w * np.maximum(skip, 0.6), 0.35)
