@@ -404,6 +404,21 @@ def test_lentigo_maligna_ranges_from_a_faint_tan_stain_to_mid_brown(rng):
     assert np.median(drops) < 19.5, drops
 
 
+def test_psoriasis_scale_ranges_from_thick_plates_to_a_thin_film(rng):
+    """A psoriatic plaque's scale is not always the thick silvery crust of an untreated
+    elbow: treated or moisturised plaques keep a thin scale through which the salmon-red
+    shows. Over 24 draws the mean scale over the plaque reaches under 0.235 and over
+    0.38 (over 200 seeds it spans 0.125-0.52; the old draw, always heavy, never went
+    under 0.24)."""
+    from glsynth.assets.morphology import make_condition
+    cover = []
+    for seed in rng.integers(2 ** 31, size=24):
+        p = make_condition("psoriasis", [int(seed)], size=256)
+        assert 0.25 <= p.params["scale_cover"] <= 1.0
+        cover.append(float(p.f["scale"][p.mask].mean()))
+    assert min(cover) < 0.235 and max(cover) > 0.38, cover
+
+
 def test_melanoma_is_one_compact_irregular_lesion_not_an_ink_blot(rng):
     """A melanoma's outline is irregular (notched, lobed, asymmetric) but compact: one
     region without holes, filling 80-98% of its convex hull. (Over 300 draws the old

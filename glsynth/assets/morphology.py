@@ -551,13 +551,17 @@ def _plaque(b, rng, R, shape, scale_colour, erythema, border="sharp", scale_cov=
 
 def _psoriasis(b, rng, R):
     arrangement = rng.choice(["solitary", "grouped", "confluent"], p=[0.5, 0.3, 0.2])
+    # from the thick silvery plates of untreated plaques on elbows and knees to the thin
+    # scale of a treated or moisturised plaque, whose salmon-red shows through
+    cover = rng.uniform(0.25, 1.0)
     if arrangement == "solitary":
-        col = _plaque(b, rng, R, "oval", "silvery", rng.uniform(2.5, 4.5), scale_cov=rng.uniform(0.6, 1.0))
+        col = _plaque(b, rng, R, "oval", "silvery", rng.uniform(2.5, 4.5), scale_cov=cover)
     else:
         for p in arrange(b.c, "grouped", int(rng.integers(3, 9)), R * 1.2, R * 0.3):
             col = _plaque_at(b, rng, R * rng.uniform(0.25, 0.5), p, "silvery", rng.uniform(2.5, 4.5),
-                             merge=arrangement == "confluent")
-    return {"scale": "silvery", "arrangement": str(arrangement), "scale_rgb": col}
+                             merge=arrangement == "confluent", scale_cov=cover)
+    return {"scale": "silvery", "arrangement": str(arrangement), "scale_cover": round(float(cover), 3),
+            "scale_rgb": col}
 
 
 def _plaque_at(b, rng, r, centre, scale_colour, erythema, merge=False, border="sharp", scale_cov=0.8,
