@@ -524,7 +524,7 @@ def _lentigo_maligna(b, rng, R):
     blotch = smoothstep(-1.5, 2.2, c.noise(R / 3, 2) + 0.5 * c.noise(max(0.8, R / 8), 2))
     skip = 0.55 + 0.45 * smoothstep(-2.2, -0.6, c.noise(R / 4, 2))  # paler skin left inside
     # from a faint stain (the way it is most often missed) to mid brown; skip areas
-    # halve the pigment at most (emptied, they read as round pale holes)
+    # keep at least 0.55 of the pigment (emptied, they read as round pale holes)
     base = rng.uniform(0.015, 0.06)
     dark = rng.uniform(0.04, 0.16)
     follicle = c.noise(max(0.3, R / 40), 1)                        # rings round follicles
@@ -536,7 +536,7 @@ def _lentigo_maligna(b, rng, R):
     return {"border": "ill-defined, fading in places"}
 
 
-def _plaque(b, rng, R, shape, scale_colour, erythema, border="sharp", scale_cov=0.8, flake=1.5):
+def _plaque(b, rng, R, shape, scale_colour, erythema, scale_cov, border="sharp", flake=1.5):
     c = b.c
     sd = c.shape(shape, R, aspect=rng.uniform(0.55, 1.0), irregular=0.15, warp=0.12,
                  width=R * rng.uniform(0.3, 0.5))
@@ -564,7 +564,7 @@ def _psoriasis(b, rng, R):
             "scale_rgb": col}
 
 
-def _plaque_at(b, rng, r, centre, scale_colour, erythema, merge=False, border="sharp", scale_cov=0.8,
+def _plaque_at(b, rng, r, centre, scale_colour, erythema, scale_cov, merge=False, border="sharp",
                flake=1.2):
     c = b.c
     sd = c.shape("oval", r, centre=centre, aspect=rng.uniform(0.6, 1.0), irregular=0.15, warp=0.1)
