@@ -1757,9 +1757,10 @@ def _take_in_halo(b, fields, reach, allowed, step=4):
     radius = np.sqrt(np.bincount(b.instances.ravel())[nearest] / np.pi)
     add = candidate & (dist <= reach * radius)
     # skin a halo closes round (between a lesion and its rim) is drawn over too; the
-    # lesion's own holes (spared islands, an annulus's clear centre) stay holes
+    # lesion's own holes (an annulus's clear centre) stay holes, and so do spared
+    # islands, also those that were notches in the outline until the halo closed them
     grown = b.mask | add
-    add |= ndimage.binary_fill_holes(grown) & ~grown & ~ndimage.binary_fill_holes(b.mask) & allowed
+    add |= ndimage.binary_fill_holes(grown) & ~grown & ~ndimage.binary_fill_holes(b.mask) & allowed & ~b.spared
     b.instances[add] = nearest[add]
     b.mask |= add
 
