@@ -307,10 +307,6 @@ class ViewsConfig:
                            "in a lit room 1-2 stops under, a clinical macro flash at f/8-16 "
                            "4 or more); a room background is dimmed as much",
                            pair=between(0, 1))
-    metering: float = key(0.85, "the camera's exposure: every light is scaled so the viewed point "
-                          "receives this much (1: skin comes out at its own reflectance where "
-                          "the camera is aimed, as a photographer exposes for it; 0: off, the "
-                          "drawn intensities as they are, the paper's)", within=between(0, 16))
     ambient_tint: float = key(0.5, "tint the ambient light by the background's mean colour (0: none)",
                               within=between(0, 1))
     light_kelvin: list = key([2700.0, 7500.0], "colour temperature of the room light (K, uniform in "

@@ -132,7 +132,6 @@ def view_record(sample_id, size, scene, *, attempts, ambient_tint, photo, body, 
             "ambient_tint": list(ambient_tint) if ambient_tint is not None else None,
             **({"light_kelvin": scene.kelvin, "white_balance_gains": list(scene.white_balance)}
                if scene.kelvin is not None else {}),
-            "exposure_gain": scene.exposure_gain,
             "photo": photo, "body": body, "lesions": lesions, "nevi": nevi,
             "background": background, "fractions": fractions, "box_convention": BOX_CONVENTION}
 

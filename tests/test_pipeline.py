@@ -273,7 +273,7 @@ def test_a_flash_dims_a_room_background_but_not_a_drape(tmp_path):
     for k in (0.5, 0.1):
         out = tmp_path / f"k{k}"
         gs.Generate2DViews(small_config("views.flash=1", "views.framing={wild: 1}", f"views.flash_room=[{k}, {k}]",
-                                        "views.light_kelvin=[0, 0]", "views.metering=0",
+                                        "views.light_kelvin=[0, 0]",
                                         "backgrounds.clinical=0", "backgrounds.blur=[0, 0]", "photo.enabled=false",
                                         "lesions.per_body=0"), out).synthesize_views(progress=False)
         runs[k] = RunFolder(out)
@@ -292,64 +292,6 @@ def test_a_flash_dims_a_room_background_but_not_a_drape(tmp_path):
     scene = V.ViewScene(camera=None, light=None, material=None, centre="surface", room_exposure=0.2)
     assert V.background_exposure(scene, {"kind": "wall"}) == 0.2 and V.background_exposure(scene, {}) == 0.2
     assert all(V.background_exposure(scene, {"kind": k}) == 1.0 for k in NEAR_BACKDROPS)
-
-
-def test_metering_exposes_for_the_viewed_point_whatever_the_lamps_intensity(tmp_path):
-    """views.metering: a run whose lights are all twice as bright gives the same images
-    (the camera exposes for the light at the viewed point) and backgrounds, where
-    without metering the skin comes out brighter."""
-    from glsynth.dataformat import SEMANTIC_BACKGROUND, RunFolder
-    runs = {}
-    for metering in (0.85, 0.0):
-        for scale in (1, 2):
-            out = tmp_path / f"m{metering}s{scale}"
-            gs.Generate2DViews(small_config(
-                "views.flash=0", f"views.metering={metering}", "lesions.per_body=0", "photo.enabled=false",
-                f"views.ambient=[{0.05 * scale}, {0.05 * scale}]", f"views.diffuse=[{0.5 * scale}, {0.5 * scale}]",
-                f"views.specular=[{0.05 * scale}, {0.05 * scale}]"), out).synthesize_views(progress=False)
-            runs[metering, scale] = RunFolder(out)
-    ids = runs[0.85, 1].sample_ids()
-    assert len(ids) >= 3
-    for sid in ids:
-        one, two = runs[0.85, 1], runs[0.85, 2]
-        assert np.abs(one.image(sid).astype(int) - two.image(sid)).max() <= 1
-        assert one.record(sid)["exposure_gain"] == pytest.approx(2 * two.record(sid)["exposure_gain"])
-        assert one.record(sid)["background"]["exposure"] == pytest.approx(two.record(sid)["background"]["exposure"])
-        skin = runs[0.0, 1].layer(sid, "semantic") != SEMANTIC_BACKGROUND
-        dim, bright = runs[0.0, 1].image(sid)[skin].mean(), runs[0.0, 2].image(sid)[skin].mean()
-        assert bright > dim + 10 and runs[0.0, 1].record(sid)["exposure_gain"] == 1.0
-
-
-def test_metered_scene_receives_the_target_at_its_point():
-    """_metered scales every light so the viewed point receives the target: the room
-    light's diffuse and ambient terms and the flash, as _light_at_point sums them for the
-    point's normal; a room background keeps the room's share (all of it without a flash);
-    a point the lights barely reach is brightened four stops at most."""
-    from glsynth.lighting import PointLight
-    from glsynth.pipeline import views as V
-    rng = np.random.default_rng()
-    for _ in range(20):
-        point, normal = rng.normal(size=3), rng.normal(size=3)
-        normal /= np.linalg.norm(normal)
-        up = np.cross(normal, rng.normal(size=3))
-        lamp = point + rng.uniform(0.3, 2) * (normal + rng.uniform(0, 1.5) * up / np.linalg.norm(up))
-        light = PointLight(tuple(lamp), ambient=rng.uniform(0.01, 0.2), diffuse=rng.uniform(0.2, 1.0),
-                           specular=0.05, ambient_ground=rng.uniform(0.25, 1.0))
-        flash = PointLight(tuple(point + 0.3 * normal), ambient=0.0, diffuse=rng.uniform(0.2, 1.0)) \
-            if rng.random() < 0.5 else None
-        scene = V.ViewScene(camera=None, light=light, material=None, centre="surface", flash=flash,
-                            point=point)
-        target = rng.uniform(0.5, 1.2)
-        metered = V._metered(scene, normal, target)
-        energy = V._light_at_point(metered, normal)
-        assert sum(energy.values()) == pytest.approx(target)
-        assert metered.room_exposure == pytest.approx(energy["light"] + energy["ambient"])
-        if flash is None:
-            assert metered.room_exposure == pytest.approx(target)
-        assert metered.light.specular[0] == pytest.approx(0.05 * metered.exposure_gain)
-    behind = PointLight((0.0, 0.0, -1.0), ambient=0.001, diffuse=1.0)
-    scene = V.ViewScene(camera=None, light=behind, material=None, centre="surface", point=np.zeros(3))
-    assert V._metered(scene, (0.0, 0.0, 1.0), 1.0).exposure_gain == pytest.approx(16)
 
 
 @pytest.fixture

@@ -41,8 +41,6 @@ class ViewScene:
     # (views.light_kelvin), and the camera's white-balance gains for their mix
     kelvin: dict | None = None
     white_balance: tuple = (1.0, 1.0, 1.0)
-    # the camera's exposure (views.metering): the factor on every drawn light intensity
-    exposure_gain: float = 1.0
 
     @property
     def lights(self) -> list:
@@ -352,43 +350,7 @@ def sample_scene(body, lesion_sites, rng, v, renderer, ambient_tint=None, drawn=
                       framing=framing, room_exposure=room_exposure)
     if v.light_kelvin[1] > 0:   # drawn last: the scene's other draws stay as they were
         scene = _coloured_lights(scene, normal, rng, v)
-    if v.metering > 0:          # draws nothing
-        scene = _metered(scene, normal, v.metering)
     return scene
-
-
-def _light_at_point(scene, normal) -> dict:
-    """The luminance each light term brings to a surface at the viewed point with normal
-    ``normal``: the room light's diffuse term, its ambient term and the flash (fall-off
-    is 1 there by construction; a light behind the surface brings none)."""
-    n = np.asarray(normal, np.float64) / np.linalg.norm(normal)
-    facing = lambda p: max(float(n @ (p - scene.point)) / np.linalg.norm(p - scene.point), 0.0)  # noqa: E731
-    light = scene.light
-    energy = {"light": np.mean(light.diffuse) * facing(np.asarray(light.position)),
-              "ambient": np.mean(light.ambient) * ambient_gain(n[1], light.ambient_ground)}
-    if scene.flash is not None:
-        energy["flash"] = np.mean(scene.flash.diffuse) * facing(np.asarray(scene.flash.position))
-    return energy
-
-
-def _metered(scene, normal, target) -> ViewScene:
-    """The camera's exposure: every light scaled so that the viewed point receives
-    ``target`` (1: a white surface there comes out white, skin at its own reflectance),
-    as a camera metering the skin it is aimed at, or a photographer exposing for it,
-    does; the drawn intensities keep only their ratios. Without it a dim lamp gave a dark
-    photograph, and healthy skin came out darker than in clinical photographs (median L*
-    of type II skin 55 against 64). A room background keeps the room light's share of the
-    exposure (1 without a flash). The gain is capped at 16 (four stops) for a point the
-    lights barely reach."""
-    energy = _light_at_point(scene, normal)
-    received = sum(energy.values())
-    gain = target / max(received, target / 16)
-    scale = lambda light: replace(light, ambient=tuple(gain * np.asarray(light.ambient)),  # noqa: E731
-                                  diffuse=tuple(gain * np.asarray(light.diffuse)),
-                                  specular=tuple(gain * np.asarray(light.specular)))
-    flash = scale(scene.flash) if scene.flash is not None else None
-    return replace(scene, light=scale(scene.light), flash=flash,
-                   room_exposure=gain * (energy["light"] + energy["ambient"]), exposure_gain=gain)
 
 
 def _mired_uniform(rng, kelvin_range) -> float:
@@ -410,8 +372,14 @@ def _coloured_lights(scene, normal, rng, v) -> ViewScene:
     if scene.flash is not None:
         kelvin["flash"] = _mired_uniform(rng, v.flash_kelvin)
     colour = {k: light_colour(t) for k, t in kelvin.items()}
+    n = np.asarray(normal, np.float64) / np.linalg.norm(normal)
+    facing = lambda p: max(float(n @ (p - scene.point)) / np.linalg.norm(p - scene.point), 0.0)  # noqa: E731
     light = scene.light
-    energy = _light_at_point(scene, normal)
+    # each term as it reaches the viewed point (fall-off is 1 there by construction)
+    energy = {"light": np.mean(light.diffuse) * facing(np.asarray(light.position)),
+              "ambient": np.mean(light.ambient) * ambient_gain(n[1], light.ambient_ground)}
+    if scene.flash is not None:
+        energy["flash"] = np.mean(scene.flash.diffuse) * facing(np.asarray(scene.flash.position))
     total = sum(energy.values())
     mix = sum(energy[k] * colour[k] for k in energy) / total if total > 0 else colour["light"]
     gain = 1 / mix          # each colour has luminance 1, so the mix and its balance keep it
