@@ -916,10 +916,11 @@ def test_inflammatory_patch_is_red_and_one_instance_per_patch(rng):
 
 
 def _fine_variation(values, mask, mm_per_px):
-    """Spread of ``values`` under a millimetre across, over their mean, inside ``mask``.
-    A grid coarser than the puncta draws them 1.5 cells across (``Builder.stippling``),
-    so there the spread is taken under that."""
-    fine = values - cv2.GaussianBlur(values, (0, 0), max(1.0, 1.5 * mm_per_px) / mm_per_px)
+    """Spread of ``values`` under a millimetre across, over their mean, inside ``mask``;
+    on a grid that draws the puncta further apart than that (``puncta_mm``), under
+    their spacing."""
+    from glsynth.assets.morphology import puncta_mm
+    fine = values - cv2.GaussianBlur(values, (0, 0), max(1.0, puncta_mm(mm_per_px)) / mm_per_px)
     return fine[mask].std() / values[mask].mean()
 
 

@@ -297,6 +297,13 @@ STIPPLE_BLOTCH_MM = 3.0
 STIPPLE_DOT_MM = 0.35
 INFLAMED = 0.8          # its strength in the dermatoses' erythema
 
+
+def puncta_mm(mm_per_cell) -> float:
+    """How far apart the stippling's puncta are drawn on a grid: STIPPLE_DOT_MM, or 1.5
+    cells where the grid is too coarse to hold them."""
+    return max(STIPPLE_DOT_MM, 1.5 * mm_per_cell)
+
+
 class Builder:
     """Accumulates a condition's fields on a Canvas."""
 
@@ -355,7 +362,7 @@ class Builder:
         if self._stippling is None:
             c = self.c
             blotch = c.noise(STIPPLE_BLOTCH_MM, 2)
-            dots = c.noise(max(STIPPLE_DOT_MM, 1.5 * c.px), 1)
+            dots = c.noise(puncta_mm(c.px), 1)
             factor = np.exp(0.35 * blotch) * (0.55 + 0.9 * smoothstep(0.0, 1.2, dots))
             self._stippling = (factor / factor.mean()).astype(np.float32)
         return self._stippling
