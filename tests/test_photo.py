@@ -21,6 +21,7 @@ RANGES = {"defocus": ("aperture", [0.002, 0.003]), "motion_blur": ("motion_blur"
           "chromatic_aberration": ("chromatic_aberration", [1.0, 2.0]),
           "vignetting": ("vignetting", [0.2, 0.4]), "exposure": ("exposure", [0.3, 0.6]),
           "noise": ("shot_noise", [0.002, 0.004]), "white_balance": ("white_balance", [0.1, 0.2]),
+          "auto_white_balance": ("auto_white_balance", [0.3, 0.6]),
           "tone": ("contrast", [0.2, 0.4]), "jpeg": ("jpeg_quality", [70, 90]),
           "watermark": ("watermark", 1.0)}
 
@@ -221,6 +222,50 @@ def test_white_balance_and_exposure_act_in_linear_space():
     lin = photo.SRGB_TO_LINEAR[100]
     expect = [photo.linear_to_srgb8(np.float32(lin * 2 * g)) for g in (1.2, 1.0, 0.8)]
     assert out[0, 0].tolist() == [int(e) for e in expect]
+
+
+def _lab(rgb_u8):
+    return cv2.cvtColor(np.asarray(rgb_u8, np.float32).reshape(-1, 1, 3) / 255, cv2.COLOR_RGB2LAB)[:, 0]
+
+
+def test_grey_world_balance_takes_the_frame_mean_towards_grey(rng):
+    """Random frames: the gains keep the mean's luminance, take its chromaticity the
+    drawn share of the way (in log) to grey, and strength 0 is no change."""
+    for _ in range(20):
+        lin = (rng.random((32, 48, 3)) * rng.uniform(0.3, 1, 3)).astype(np.float32) * 0.9  # gains within bounds
+        mean = lin[::4, ::4].reshape(-1, 3).astype(np.float64).mean(0)
+        y = photo.LUMA_LINEAR @ mean
+        k = rng.uniform(0, 1)
+        g = photo.grey_world_gains(lin, k)
+        assert np.isclose(photo.LUMA_LINEAR @ (mean * g), y)
+        ratio = np.log(mean * g / y)                       # 0 for grey
+        assert np.allclose(ratio - ratio.mean(), (1 - k) * (np.log(mean / y) - np.log(mean / y).mean()),
+                           atol=1e-9)
+        assert np.allclose(photo.grey_world_gains(lin, 0.0), 1.0)
+    black = np.zeros((16, 16, 3), np.float32)               # no NaN on a black or one-primary frame
+    red = np.zeros((16, 16, 3), np.float32)
+    red[..., 0] = 0.5
+    for frame in (black, red):
+        g = photo.grey_world_gains(frame, 1.0)
+        assert np.isfinite(g).all() and g.min() > 0 and g.max() / g.min() <= 16 * (1 + 1e-9)
+
+
+def test_grey_world_balance_cools_skin_and_casts_it_off_a_red_plaque():
+    """Skin filling the frame comes out less warm; the same skin beside a red plaque that
+    fills most of the frame turns green (as in clinical photographs of large plaques),
+    and clipped highlights do not steer the balance."""
+    on = {"enabled": True, "effects": {"auto_white_balance": {"strength": 0.5}}}
+    skin = np.full((40, 40, 3), (204, 153, 128), np.uint8)
+    before, after = _lab(skin[0, 0]), _lab(photo.apply(skin, on)[0, 0])
+    assert after[0, 2] < before[0, 2] - 5 and after[0, 1] < before[0, 1] - 4
+    assert abs(after[0, 0] - before[0, 0]) < 1.5
+    frame = np.full((40, 40, 3), (225, 190, 170), np.uint8)
+    frame[:, :26] = (215, 120, 120)
+    assert _lab(frame[0, -1])[0, 1] > 5 and _lab(photo.apply(frame, on)[0, -1])[0, 1] < 0
+    glare = skin.copy()
+    glare[:10] = 255
+    assert np.allclose(photo.grey_world_gains(photo.srgb_to_linear(glare), 0.5),
+                       photo.grey_world_gains(photo.srgb_to_linear(skin), 0.5), atol=1e-6)
 
 
 def test_config_photo_keys_are_validated():

@@ -25,7 +25,11 @@ Order (the order light takes through a camera), each step optional:
    plus read noise (std ``b``), ``x`` in linear units, then clipped to [0, 1]
 8. white balance / colour temperature: channel gains ``R 2^(t/2)``, ``B 2^(-t/2)``,
    ``G 2^g`` (``t`` warm/cool, ``g`` green/magenta tint); a share of images
-   (``cast_share``) draws ``t`` and ``g`` from the wider cast ranges instead
+   (``cast_share``) draws ``t`` and ``g`` from the wider cast ranges instead. Before
+   them the camera's own grey-world balance (``auto_white_balance``, strength ``k``):
+   gains ``(Y / m_c)^k`` from the frame's mean linear colour ``m`` (unclipped pixels)
+   and its luminance ``Y``, which keep ``Y``; a frame filled with skin comes out less
+   warm, one filled with a red plaque casts its skin green
 9. linear -> sRGB, rounded to 8 bits
 10. tone: the phone's rendering of its sRGB image, an S curve
     ``(1 - c) x + c x^2 (3 - 2 x)`` (mid-tones steeper by ``c / 2``, black, mid-grey and
@@ -56,9 +60,10 @@ import numpy as np
 from ..assets.colour import SRGB8_TO_LINEAR
 
 LINEAR_EFFECTS = ("defocus", "motion_blur", "chromatic_aberration", "vignetting", "exposure",
-                  "noise", "white_balance")
+                  "noise", "auto_white_balance", "white_balance")
 EFFECTS = LINEAR_EFFECTS + ("tone", "watermark", "jpeg")
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)   # Rec. 601, as JPEG's YCbCr
+LUMA_LINEAR = np.array([0.2126, 0.7152, 0.0722])       # Rec. 709 / sRGB primaries, linear light
 
 # sRGB <-> linear look-up tables (the sRGB transfer function, IEC 61966-2-1)
 SRGB_TO_LINEAR = SRGB8_TO_LINEAR
@@ -116,6 +121,7 @@ def sample_params(pc, rng, focus_distance: float, focal_px: float = 1.0) -> dict
     q_lo, q_hi = int(pc.jpeg_quality[0]), int(pc.jpeg_quality[1])
     quality = int(rng.integers(q_lo, q_hi + 1)) if q_hi > 0 else 0
     contrast, saturation = _u(rng, pc.contrast), _u(rng, pc.saturation)
+    awb = _u(rng, pc.auto_white_balance)
     fx = {}
     if aperture > 0:
         fx["defocus"] = {"aperture": aperture, "focal_px": float(focal_px),
@@ -131,6 +137,8 @@ def sample_params(pc, rng, focus_distance: float, focal_px: float = 1.0) -> dict
         fx["exposure"] = {"ev": ev}
     if shot > 0 or read > 0:
         fx["noise"] = {"shot": shot, "read": read, "seed": noise_seed}
+    if awb > 0:
+        fx["auto_white_balance"] = {"strength": awb}
     if wb != 0 or tint != 0:
         fx["white_balance"] = {"temperature": wb, "tint": tint, "cast": cast,
                                "gains": [2 ** (wb / 2), 2 ** tint, 2 ** (-wb / 2)]}
@@ -305,6 +313,20 @@ def add_noise(lin, shot, read, seed):
     return np.clip(normal, 0, 1, out=normal)
 
 
+def grey_world_gains(lin, strength):
+    """RGB gains that take the frame's mean linear colour ``strength`` of the way (in
+    log) to a grey of the same luminance, as a camera's grey-world white balance does:
+    the mean of the pixels no channel of which clips (every pixel when fewer than 1%
+    are left), sampled every 4th row and column. Bounded to [1/4, 4] so that a frame of
+    nearly one primary (black cloth, a saturated drape) does not blow up a channel."""
+    px = np.asarray(lin[::4, ::4], np.float64).reshape(-1, 3)
+    ok = px.max(axis=1) < 0.98
+    mean = np.maximum((px[ok] if ok.mean() >= 0.01 else px).mean(axis=0), 1e-6)
+    y = float(LUMA_LINEAR @ mean)
+    gains = np.clip((y / mean) ** float(strength), 0.25, 4.0)
+    return gains * (y / float(LUMA_LINEAR @ (mean * gains)))
+
+
 def tone_curve(contrast):
     """The S curve of strength ``contrast`` as a 256-entry table of 8-bit values."""
     x = np.arange(256, dtype=np.float64) / 255
@@ -394,8 +416,15 @@ def apply(image: np.ndarray, params: dict, depth: np.ndarray | None = None) -> n
         if "noise" in fx:
             p = fx["noise"]
             lin = add_noise(lin, p["shot"], p["read"], p["seed"])
-        # white balance: gains after the sensor, applied by the sRGB encoding
-        img = linear_to_srgb8(lin, fx["white_balance"]["gains"] if "white_balance" in fx else None)
+        # white balance: gains after the sensor, applied by the sRGB encoding; the
+        # camera's own balance first, from the frame it sees, then its error or a cast
+        gains = np.ones(3)
+        if "auto_white_balance" in fx:
+            gains = gains * grey_world_gains(lin, fx["auto_white_balance"]["strength"])
+        if "white_balance" in fx:
+            gains = gains * np.asarray(fx["white_balance"]["gains"])
+        img = linear_to_srgb8(lin, gains if ("white_balance" in fx or "auto_white_balance" in fx)
+                              else None)
     if "tone" in fx:
         img = tone(img, fx["tone"]["contrast"], fx["tone"]["saturation"])
     if "watermark" in fx:
