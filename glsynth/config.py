@@ -380,7 +380,7 @@ class PhotoConfig:
     cast_white_balance: list = key([-0.6, 0.6], "a cast's log2(R gain / B gain): about +-2,000 K",
                                    pair=between(-2, 2))
     cast_tint: list = key([-0.4, 0.4], "a cast's log2 G gain (green / magenta)", pair=between(-2, 2))
-    auto_white_balance: list = key([0.0, 0.6], "the camera's grey-world white balance: how far (in "
+    auto_white_balance: list = key([0.0, 0.3], "the camera's grey-world white balance: how far (in "
                                    "log) it takes the frame's mean colour towards grey (1: all "
                                    "the way; a frame of skin comes out cooler, one of a red "
                                    "plaque casts the skin round it green)", pair=between(0, 1))
