@@ -10,6 +10,7 @@ import torch
 
 import glsynth as gs
 from glsynth import diff
+from glsynth.assets.colour import srgb_to_lab
 from glsynth.config import ConfigError, PhotoConfig, load_config
 from glsynth.lighting import Material, PointLight
 from glsynth.pipeline import photo
@@ -224,10 +225,6 @@ def test_white_balance_and_exposure_act_in_linear_space():
     assert out[0, 0].tolist() == [int(e) for e in expect]
 
 
-def _lab(rgb_u8):
-    return cv2.cvtColor(np.asarray(rgb_u8, np.float32).reshape(-1, 1, 3) / 255, cv2.COLOR_RGB2LAB)[:, 0]
-
-
 def test_grey_world_balance_takes_the_frame_mean_towards_grey(rng):
     """Random frames: the gains keep the mean's luminance, take its chromaticity the
     drawn share of the way (in log) to grey, and strength 0 is no change."""
@@ -256,12 +253,12 @@ def test_grey_world_balance_cools_skin_and_casts_it_off_a_red_plaque():
     and clipped highlights do not steer the balance."""
     on = {"enabled": True, "effects": {"auto_white_balance": {"strength": 0.5}}}
     skin = np.full((40, 40, 3), (204, 153, 128), np.uint8)
-    before, after = _lab(skin[0, 0]), _lab(photo.apply(skin, on)[0, 0])
-    assert after[0, 2] < before[0, 2] - 5 and after[0, 1] < before[0, 1] - 4
-    assert abs(after[0, 0] - before[0, 0]) < 1.5
+    before, after = srgb_to_lab(skin[0, 0]), srgb_to_lab(photo.apply(skin, on)[0, 0])
+    assert after[2] < before[2] - 5 and after[1] < before[1] - 4
+    assert abs(after[0] - before[0]) < 1.5
     frame = np.full((40, 40, 3), (225, 190, 170), np.uint8)
     frame[:, :26] = (215, 120, 120)
-    assert _lab(frame[0, -1])[0, 1] > 5 and _lab(photo.apply(frame, on)[0, -1])[0, 1] < 0
+    assert srgb_to_lab(frame[0, -1])[1] > 5 and srgb_to_lab(photo.apply(frame, on)[0, -1])[1] < 0
     glare = skin.copy()
     glare[:10] = 255
     assert np.allclose(photo.grey_world_gains(photo.srgb_to_linear(glare), 0.5),

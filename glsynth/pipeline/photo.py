@@ -57,13 +57,13 @@ import math
 import cv2
 import numpy as np
 
-from ..assets.colour import SRGB8_TO_LINEAR
+from ..assets.colour import LINEAR_RGB_TO_XYZ, SRGB8_TO_LINEAR
 
 LINEAR_EFFECTS = ("defocus", "motion_blur", "chromatic_aberration", "vignetting", "exposure",
                   "noise", "auto_white_balance", "white_balance")
 EFFECTS = LINEAR_EFFECTS + ("tone", "watermark", "jpeg")
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)   # Rec. 601, as JPEG's YCbCr
-LUMA_LINEAR = np.array([0.2126, 0.7152, 0.0722])       # Rec. 709 / sRGB primaries, linear light
+LUMA_LINEAR = LINEAR_RGB_TO_XYZ[1]                     # luminance Y of linear sRGB
 
 # sRGB <-> linear look-up tables (the sRGB transfer function, IEC 61966-2-1)
 SRGB_TO_LINEAR = SRGB8_TO_LINEAR
@@ -420,11 +420,10 @@ def apply(image: np.ndarray, params: dict, depth: np.ndarray | None = None) -> n
         # camera's own balance first, from the frame it sees, then its error or a cast
         gains = np.ones(3)
         if "auto_white_balance" in fx:
-            gains = gains * grey_world_gains(lin, fx["auto_white_balance"]["strength"])
+            gains *= grey_world_gains(lin, fx["auto_white_balance"]["strength"])
         if "white_balance" in fx:
-            gains = gains * np.asarray(fx["white_balance"]["gains"])
-        img = linear_to_srgb8(lin, gains if ("white_balance" in fx or "auto_white_balance" in fx)
-                              else None)
+            gains *= fx["white_balance"]["gains"]
+        img = linear_to_srgb8(lin, gains)
     if "tone" in fx:
         img = tone(img, fx["tone"]["contrast"], fx["tone"]["saturation"])
     if "watermark" in fx:
