@@ -473,9 +473,15 @@ def test_porokeratosis_rings_have_a_darker_keratotic_rim(rng):
             inner = ndimage.binary_erosion(m, iterations=6)
             if inner.sum() < 10:
                 continue
-            rimmed += np.percentile(f.f["melanin"][rim], 75) > np.median(f.f["melanin"][inner]) + 0.2 \
+            outside = ndimage.binary_dilation(m, iterations=8) & ~ndimage.binary_dilation(m, iterations=4) \
+                & (f.instances == 0)
+            # darker than both the centre and the skin round it; the ridge is ~1.5 cells inside
+            # a 4-cell band, so it shows in the band's top few percent (the 75th percentile
+            # missed it on ~3% of rings)
+            around = max(np.median(f.f["melanin"][inner]), np.median(f.f["melanin"][outside]))
+            rimmed += np.percentile(f.f["melanin"][rim], 95) > 1.4 * around \
                 and f.f["scale"][rim].max() > 0.3 and f.f["height"][rim].mean() > f.f["height"][inner].mean()
-        assert rimmed >= 0.8 * len(ids), (rimmed, len(ids))
+        assert rimmed == len(ids), (rimmed, len(ids))
 
 
 def test_erythema_darkens_more_than_it_reddens_on_dark_skin():
