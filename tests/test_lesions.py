@@ -503,6 +503,46 @@ def test_erythema_darkens_more_than_it_reddens_on_dark_skin():
     assert changes[6][0] < 0                                   # and darker
 
 
+def test_a_flushed_skin_keeps_its_flush_over_a_condition(rng):
+    """Skin redder than a healthy dermis' blood explains (a body's flush, a* 11-16) keeps
+    that redness over a condition: added vessels redden it nearly as much as the same skin
+    without the flush (the model saturates: on top of the 8-10% blood the inverse reads,
+    they reddened it half as much); blanching still takes the flush away, melanin still
+    hides it, and empty fields leave the skin as it was."""
+    from glsynth.assets.colour import lab_to_srgb
+    from glsynth.assets.morphology import Builder, Canvas, apply_to_skin
+
+    def a_star_change(skin_lab, edit=None):
+        b = Builder(Canvas(np.random.default_rng(0), 64, 20.0))
+        disc = b.weight(b.c.shape("round", 6.0, irregular=0.0, warp=0.0), 1.0)
+        if edit:
+            edit(b, disc)
+        rgb = np.clip(np.rint(lab_to_srgb(np.asarray([skin_lab], np.float64)) * 255), 0, 255).astype(np.uint8)
+        skin = np.tile(rgb, (64, 64, 1))
+        out = apply_to_skin(b.fields(20.0), skin)
+        if edit is None:
+            assert np.abs(out.astype(int) - skin).max() <= 1              # nothing: unchanged
+        return (srgb_to_lab(out[disc > 0.95]).mean(0) - srgb_to_lab(rgb)[0])[1]
+
+    def darker(b, disc):
+        b.f["melanin_add"] += 0.3 * disc
+
+    ratios = []
+    for _ in range(4):
+        L, b_star = rng.uniform(60, 72), rng.uniform(14, 20)
+        flushed, even = (L, rng.uniform(11, 16), b_star), (L, 5.5, b_star)
+        a_star_change(flushed)
+        red_flushed = a_star_change(flushed, lambda b, disc: b.erythema(disc, 3.0))
+        red_even = a_star_change(even, lambda b, disc: b.erythema(disc, 3.0))
+        assert red_even > 8
+        ratios.append(red_flushed / red_even)
+        assert a_star_change(flushed, lambda b, disc: b.erythema(disc, -0.7)) < -2.5   # blanched
+        shown = (flushed[1] + a_star_change(flushed, darker)) - (even[1] + a_star_change(even, darker))
+        assert shown < 0.7 * (flushed[1] - even[1]), shown                              # hidden
+    # over 60 draws: 0.81-1.04 (saturating, as before: 0.53-0.81, mean 0.7)
+    assert np.mean(ratios) > 0.8, ratios
+
+
 def test_kubelka_munk_layer_matches_the_hyperbolic_form(rng):
     """The one-exponential layer formula equals Kubelka-Munk's sinh/cosh form (evaluated in
     float64 where it does not overflow), and stays finite and in [0, 1] for thick layers."""
