@@ -11,12 +11,16 @@ per image, how much of its healthy skin lies in deep shade: the share of those p
 (unsmoothed) whose L* is below SHADE (0.6) times the image's median skin L*, a fifth of
 the median's luminance or less (skin turning away from the light, a fold, a limb behind).
 Printed are the 10th / 50th / 90th percentiles over images, the mean skin colour, and the
-share of images with at least 5% of their skin in deep shade, for each folder.
+share of images with at least 5% of their skin in deep shade, for each folder. With
+--by-kind, also the lesion contrast of each kind of lesion in glsynth output (its
+instances in an image taken together, by the ``kind`` each image's record gives).
 
-    python tools/skin_color_stats.py OUT_DIR [OUT_DIR ...] --real ../shared/realdev/fitz17k
+    python tools/skin_color_stats.py OUT_DIR [OUT_DIR ...] --real ../shared/realdev/fitz17k [--by-kind]
 """
 import argparse
+import collections
 import glob
+import json
 import os
 
 import cv2
@@ -81,6 +85,35 @@ def synthetic(folder):
     return out
 
 
+def by_kind(folder):
+    """{lesion kind: [Lab contrast per image showing that kind]} over a glsynth output."""
+    out = collections.defaultdict(list)
+    for f in sorted(glob.glob(os.path.join(folder, "images", "*.png"))):
+        sid = os.path.basename(f)[:-4]
+        with open(os.path.join(folder, "targets", f"{sid}.json")) as fh:
+            kinds = collections.defaultdict(list)
+            for item in json.load(fh).get("lesions", []):
+                kinds[item["source"].get("kind", "real")].append(item["instance"])
+        if not kinds:
+            continue
+        sem = cv2.imread(os.path.join(folder, "targets", f"{sid}_semantic.png"), cv2.IMREAD_GRAYSCALE)
+        ins = cv2.imread(os.path.join(folder, "targets", f"{sid}_instances.png"), cv2.IMREAD_UNCHANGED)
+        for kind, ids in kinds.items():
+            img, skin, lesion = _resized(cv2.imread(f), sem == 1, np.isin(ins, ids))
+            c = contrast(img, lesion, skin)
+            if c is not None:
+                out[kind].append(c)
+    return out
+
+
+def report_kinds(name, kinds):
+    print(f"{name}, lesion contrast by kind (median over images: dE, da*, dL*, db*):")
+    for kind in sorted(kinds):
+        d = np.array(kinds[kind])
+        dE, dL, da, db = np.median(np.linalg.norm(d, axis=1)), *np.median(d, 0)
+        print(f"  {kind:24s} {len(d):4d}  dE {dE:5.1f}  da* {da:5.1f}  dL* {dL:6.1f}  db* {db:5.1f}")
+
+
 def real(folder):
     out = []
     for sub in sorted(os.listdir(folder)):
@@ -120,11 +153,14 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("outputs", nargs="*", help="glsynth output folders")
     ap.add_argument("--real", action="append", default=[], help="folder in the Fitzpatrick17k layout")
+    ap.add_argument("--by-kind", action="store_true", help="lesion contrast per kind of lesion")
     args = ap.parse_args()
     for r in args.real:
         report(r, real(r))
     for o in args.outputs:
         report(o, synthetic(o))
+        if args.by_kind:
+            report_kinds(o, by_kind(o))
 
 
 if __name__ == "__main__":
