@@ -1495,12 +1495,13 @@ def test_actinic_keratoses_are_scaly_red_patches(rng):
     """Red (added blood) and scaly over their outline. Scale is patchy, so its mean over
     the outline is 0.037-0.08 or more (150 draws; 7% under 0.05, which this test used to
     demand, so a run of three draws failed about one time in five); a preset without
-    scale has 0."""
+    scale has 0. The added blood's median over the outline is 0.06-0.14 over 100 draws,
+    but a wide halo can pull it lower (seed 914443624: 0.048), so it must pass 0.03."""
     from glsynth.assets.morphology import make_condition
     for seed in rng.integers(2 ** 31, size=3):
         f = make_condition("actinic_keratosis", [int(seed)], size=256)
         m = f.mask
-        assert np.median(f.f["blood_add"][m]) > 0.05 and f.f["scale"][m].mean() > 0.025, seed
+        assert np.median(f.f["blood_add"][m]) > 0.03 and f.f["scale"][m].mean() > 0.025, seed
 
 
 def test_acne_mixes_inflamed_lesions_with_unlabelled_comedones(rng):
