@@ -98,8 +98,9 @@ def by_kind(folder):
             continue
         sem = cv2.imread(os.path.join(folder, "targets", f"{sid}_semantic.png"), cv2.IMREAD_GRAYSCALE)
         ins = cv2.imread(os.path.join(folder, "targets", f"{sid}_instances.png"), cv2.IMREAD_UNCHANGED)
+        image = cv2.imread(f)
         for kind, ids in kinds.items():
-            img, skin, lesion = _resized(cv2.imread(f), sem == 1, np.isin(ins, ids))
+            img, skin, lesion = _resized(image, sem == 1, np.isin(ins, ids))
             c = contrast(img, lesion, skin)
             if c is not None:
                 out[kind].append(c)
