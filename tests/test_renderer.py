@@ -378,8 +378,12 @@ def test_multisampled_rgb_and_alpha(renderer, rng):
     assert edge.sum() > 20 and ((a > 0) & (a < 1)).sum() > 20
     assert np.abs(a - ref["alpha"])[edge].mean() < 0.2       # 4 samples vs 64
     err = lambda o, where: np.abs(o["rgb"] - ref["rgb"])[where].mean()
-    # silhouettes: much closer to the reference than one sample per pixel
-    assert err(msaa, edge) < 0.6 * err(one, edge)
+    # silhouettes: much closer to the reference than one sample per pixel (median ratio
+    # 0.37 over 3,000 seeds). A box whose few edges all run near the standard 4-sample
+    # pattern's weak directions (about 18 degrees off a pixel axis, one sense only), where
+    # its samples project in two pairs, gets about 2 coverage levels, not 4: ratios up to
+    # 0.65 there (4 boxes in 3,000 above 0.6; seed 268425281 failed CI at 0.603)
+    assert err(msaa, edge) < 0.7 * err(one, edge)
     # inside, shading runs once per pixel at a point of the GL's choosing (llvmpipe: a
     # sample position, a quarter pixel off the centre): about as close as one sample
     inside = (ref["alpha"] == 1) & (a == 1)
