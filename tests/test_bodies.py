@@ -340,6 +340,26 @@ def test_beards_are_drawn_for_adult_men_only_at_their_shares():
     assert b.beard == "goatee" and {**a.to_dict(), "beard": "goatee"} == b.to_dict()
 
 
+def test_body_hair_greys_later_than_scalp_hair(rng):
+    """Under grey or white scalp hair the body hair is mostly pigmented: darker than the
+    scalp hair, darker still on brown skin, and white scalp hair's lighter than grey's."""
+    from glsynth.assets.bodies import body_hair_rgb
+    from glsynth.assets.colour import srgb_to_lab
+    from glsynth.assets.skin import HAIR_COLOURS
+    L = lambda rgb: float(srgb_to_lab(np.asarray(rgb, np.uint8))[0])  # noqa: E731
+    fair, brown = rng.uniform(20, 70), rng.uniform(-60, 0)
+    for name, rgb in HAIR_COLOURS.items():
+        body = body_hair_rgb({"hair_rgb": list(rgb), "ita": fair})
+        assert L(body) < L(rgb), name                       # every body hair a little darker
+        if name in ("grey", "white"):
+            # mostly pigmented: nearer the dark-brown body hair than the scalp's colour
+            assert L(body) - L(body_hair_rgb({"hair_rgb": HAIR_COLOURS["dark-brown"], "ita": fair})) \
+                < 0.6 * (L(rgb) - L(HAIR_COLOURS["dark-brown"])), name
+            assert L(body_hair_rgb({"hair_rgb": list(rgb), "ita": brown})) <= L(body), name
+    grey, white = (L(body_hair_rgb({"hair_rgb": HAIR_COLOURS[n], "ita": fair})) for n in ("grey", "white"))
+    assert grey + 5 < white
+
+
 def test_closed_eyes_hide_the_eyeballs_and_move_only_the_lids(default_body, cache):
     """Closing the eyes folds the lids over the eyeballs (none of the eyeball's front is
     seen from the front, against hundreds of pixels with the eyes open); only vertices

@@ -34,7 +34,7 @@ from .. import __version__
 from ..io.images import write_bytes
 from ..mesh import Mesh, SkinSurface
 from . import anatomy, chromophores, hairflow, skin
-from .colour import fitzpatrick_from_ita
+from .colour import fitzpatrick_from_ita, linear_to_srgb, srgb_to_linear
 
 log = logging.getLogger(__name__)
 
@@ -219,12 +219,27 @@ def hair_curl(look: dict) -> float:
     return 1.0 if look.get("hair_texture") == "coily" else 0.2
 
 
-def body_hair_rgb(scalp_rgb) -> tuple:
-    """Body hair is a little darker and less saturated than scalp hair (and grey hair
-    stays grey)."""
-    c = np.asarray(scalp_rgb, np.float64)
-    grey = c.mean()
-    return tuple(int(round(x)) for x in np.clip(0.85 * (grey + 0.8 * (c - grey)), 0, 255))
+# share of unpigmented strands in scalp hair of each greying colour, and in the body hair
+# of the same person: hair greys on the scalp first, on the trunk and limbs years later
+SCALP_GREY_SHARE = {"grey": 0.5, "white": 1.0}
+BODY_GREY_LAG = 0.4
+
+
+def body_hair_rgb(look: dict) -> tuple:
+    """sRGB of a body's terminal body hair from its look: a little darker and less
+    saturated than the scalp hair. Under grey or white scalp hair the body hair is still
+    mostly pigmented (dark brown, black on brown and black skin), with BODY_GREY_LAG of
+    the scalp's share of white strands mixed in (linear light: the strands' mean). Body
+    hair as grey as the scalp drew pale lines across darker skin, read as scratches."""
+    scalp = np.asarray(look["hair_rgb"], np.float64)
+    name = next((n for n, rgb in skin.HAIR_COLOURS.items() if tuple(rgb) == tuple(scalp)), None)
+    if name in SCALP_GREY_SHARE:
+        share = BODY_GREY_LAG * SCALP_GREY_SHARE[name]
+        pigment = skin.HAIR_COLOURS["black" if look.get("ita", 0.0) < 10 else "dark-brown"]
+        mean = (1 - share) * srgb_to_linear(np.divide(pigment, 255)) + share * srgb_to_linear(scalp / 255)
+        scalp = 255.0 * linear_to_srgb(mean)
+    grey = scalp.mean()
+    return tuple(int(round(x)) for x in np.clip(0.85 * (grey + 0.8 * (scalp - grey)), 0, 255))
 
 
 def _pose_parameters(model, name):
@@ -387,7 +402,7 @@ def _from_arrays(a: dict) -> Body:
     skin_surface = None
     if "skin_params" in a:
         skin_surface = SkinSurface(a["skin_params"], a["skin_weight"], a["hair_coords"],
-                                   body_hair_rgb(meta["look"]["hair_rgb"]),
+                                   body_hair_rgb(meta["look"]),
                                    scalp_hair=a.get("scalp_hair"), hair_curl=hair_curl(meta["look"]))
     mesh = Mesh(a["vertices"], a["faces"], uvs=a["uvs"], face_uvs=a["face_uvs"],
                 texture=a["texture"], textures={"nonskin": a["nonskin"], "features": a["features"]},

@@ -38,7 +38,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .colour import WHITE_D65, XYZ_TO_LINEAR_RGB, srgb_to_lab
+from .colour import WHITE_D65, XYZ_TO_LINEAR_RGB, linear_to_srgb, srgb_to_lab
 
 LAMBDA = np.arange(400.0, 701.0, 10.0)          # nm
 EPIDERMIS_CM = 0.006                            # 60 um
@@ -190,9 +190,8 @@ def linear_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, e
 def skin_rgb(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0, epidermis=1.0,
              scatter=1.0):
     """sRGB in [0, 1] (..., 3) of skin with these chromophores."""
-    lin = np.clip(linear_rgb(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis, scatter),
-                  0, 1)
-    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+    return linear_to_srgb(np.clip(linear_rgb(melanin, blood, oxygen, bilirubin, dermal_melanin, epidermis,
+                                             scatter), 0, 1))
 
 
 # The look-up table of skin_rgb_fast: linear sRGB over (melanin, blood, oxygen) of skin
@@ -241,7 +240,7 @@ def skin_rgb_fast(melanin, blood, oxygen=0.75, bilirubin=0.0, dermal_melanin=0.0
     pts = np.stack([np.log(np.clip(mel, 0, 1) + _LOG_EPS), np.log(np.clip(blood, 0, 0.7) + _LOG_EPS),
                     np.clip(oxy, 0, 1)], 1)
     lin = np.clip(_trilinear(table, coords, pts), 0, 1)
-    out = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055).astype(np.float64)
+    out = linear_to_srgb(lin)
     exact = (bili > 0) | (dmel > 0) | (blood > 0.7) | (epi != 1) | (scat != 1)
     if exact.any():
         out[exact] = skin_rgb(mel[exact], blood[exact], oxy[exact], bili[exact], dmel[exact], epi[exact],

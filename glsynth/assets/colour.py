@@ -73,6 +73,12 @@ def srgb_to_linear(c) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
+def linear_to_srgb(lin) -> np.ndarray:
+    """Linear light in [0, 1] -> sRGB values in [0, 1] (float64)."""
+    lin = np.asarray(lin, dtype=np.float64)
+    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+
+
 # the same for 8-bit values, as a table (float32; index it with uint8 sRGB)
 SRGB8_TO_LINEAR = srgb_to_linear(np.arange(256) / 255).astype(np.float32)
 
@@ -95,8 +101,7 @@ def lab_to_srgb(lab) -> np.ndarray:
     fy = (lab[..., 0] + 16.0) / 116.0
     f = np.stack([fy + lab[..., 1] / 500.0, fy, fy - lab[..., 2] / 200.0], axis=-1)
     xyz = np.where(f > _DELTA, f ** 3, 3 * _DELTA ** 2 * (f - 4.0 / 29.0)) * WHITE_D65
-    lin = np.clip(xyz @ XYZ_TO_LINEAR_RGB.T, 0.0, 1.0)
-    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+    return linear_to_srgb(np.clip(xyz @ XYZ_TO_LINEAR_RGB.T, 0.0, 1.0))
 
 
 def lab_to_uint8(lab) -> np.ndarray:
