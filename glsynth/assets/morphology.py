@@ -702,19 +702,24 @@ def _seb_keratosis(b, rng, R):
     sd = c.shape("oval", R, aspect=rng.uniform(0.6, 0.95), irregular=0.12, warp=0.06)
     w = b.weight(sd, R * 0.05)                                          # stuck-on: sharp
     mottle = 0.8 + 0.2 * c.noise(R / 4, 2)
-    level = rng.uniform(0.08, 0.4)
+    # light tan to dark brown, most of them mid brown (log-uniform: until 2026-12-07
+    # 0.08-0.4, which made most of them black-brown, L* 17-30 on type II skin)
+    level = _log_uniform(rng, 0.03, 0.3)
     b.f["melanin_add"] += w * mottle * level
     # a dull, papillomatous surface: winding ridges (~1 mm, "cerebriform") with darker
     # keratin packed in the fissures between them, keratin plugs, and a few small
     # milia-like cysts
     folds = np.abs(c.noise(max(0.5, R / 8), 2))
-    fissure = 1 - smoothstep(0.0, 0.3, folds)
+    # the fissures come and go and vary in width (until 2026-12-07 every zero line of
+    # the noise was drawn dark, joined into a continuous black net, like cracked tar)
+    open_ = smoothstep(-0.8, 0.6, c.noise(max(0.5, R / 5), 2))
+    fissure = (1 - smoothstep(0.0, 0.15 + 0.2 * open_, folds)) * (0.3 + 0.7 * open_)
     b.f["height"] += w * (0.3 + 0.25 * smoothstep(0.0, 0.8, folds)) * rng.uniform(0.6, 1.2)
     # (the keratin there is as pigmented as the lesion, so a darker SK's fissures are
     # darker: a fixed amount was lost in a dark one's mottling)
-    b.f["melanin_add"] += w * fissure * (rng.uniform(0.05, 0.15) + 0.25 * level)
+    b.f["melanin_add"] += w * fissure * (rng.uniform(0.02, 0.05) + rng.uniform(0.4, 0.8) * level)
     plugs = smoothstep(1.9, 2.4, c.noise(max(0.3, R / 20), 1)) * w     # comedo-like openings
-    b.f["melanin_add"] += 0.4 * plugs
+    b.f["melanin_add"] += (0.1 + level) * plugs
     b.f["detail"] *= 1 + 0.3 * w
     cysts = smoothstep(1.8, 2.4, c.noise(max(0.25, R / 25), 1)) * w     # milia-like cysts
     b.scale(cysts, 0.6, 0.3, "white")
