@@ -353,13 +353,16 @@ def test_an_outline_takes_in_the_visible_halo_round_its_lesion(rng, preset):
             share.append(changed[ring].mean())
         before.append(share[0])
         assert share[1] < 0.35 and share[1] <= share[0] + 0.02, (preset, int(seed), share)
-        # unchanged skin in the outline's holes: the halo, judged on a coarser grid, may
-        # reach a cell or two into one (over 60 draws of the patch at most 0.25 of it).
-        # A Kaposi sarcoma has no spared islands: skin its satellites' halos close round
-        # is drawn over by design (seeds 2133464345, 1265498922: 0.85 and 0.55 of it)
+        # unchanged skin in the outline's holes, more than three cells from their edge:
+        # the halo, judged on a coarser grid, may reach a few cells into a hole, and so
+        # closes pockets up to 6 cells wide (seed 950122297: all of one 28 cells in
+        # area); over 60 draws of the patch, none of the inside of a wider hole. A Kaposi
+        # sarcoma has no spared islands: skin its satellites' halos close round is drawn
+        # over by design (seeds 2133464345, 1265498922)
         holes = ndimage.binary_fill_holes(traced.mask) & ~traced.mask & (change < 1.0)
-        if preset != "kaposi_sarcoma":
-            assert holes.sum() < 20 or drawn.mask[holes].mean() < 0.4, (preset, int(seed))
+        inside = ndimage.binary_erosion(holes, iterations=3)
+        if preset != "kaposi_sarcoma" and inside.any():
+            assert drawn.mask[inside].mean() < 0.1, (preset, int(seed))
     if preset == "ulcer":
         assert np.mean(before) > 0.4, before
 
