@@ -461,15 +461,32 @@ def _log_uniform(rng, lo, hi):
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
+# a common naevus's nests of melanocytes: at the dermo-epidermal junction (flat), there
+# and in the dermis (raised middle), or in the dermis alone (a dome that has lost most
+# of its pigment: older adults' skin-coloured to light brown papules, on the face and
+# trunk), with their shares and melanin added (log-uniform range)
+NEVUS_TYPES = {"junctional": (0.4, (0.03, 0.25)), "compound": (0.35, (0.04, 0.3)),
+               "intradermal": (0.25, (0.004, 0.04))}
+
+
 def _nevus(b, rng, R):
+    """A common acquired naevus: round, even, sharply bordered; tan to dark brown when
+    junctional or compound, a skin-coloured to light brown dome when intradermal. Until
+    2026-12-07 every naevus was mid to dark brown (L* 28-49 below type II skin)."""
+    names = list(NEVUS_TYPES)
+    kind = names[rng.choice(len(names), p=[NEVUS_TYPES[n][0] for n in names])]
     sd = b.c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.05, warp=0.03)
     w = b.weight(sd, R * 0.15)
-    b.f["melanin_add"] += w * (0.85 + 0.15 * b.c.noise(R / 3, 2)) * rng.uniform(0.08, 0.35)
-    if rng.random() < 0.4:  # compound / intradermal: raised, a little dermal pigment
-        b.f["height"] += rng.uniform(0.3, 1.2) * smoothstep(-R * 0.1, R * 0.8, sd)
+    b.f["melanin_add"] += w * (0.85 + 0.15 * b.c.noise(R / 3, 2)) * _log_uniform(rng, *NEVUS_TYPES[kind][1])
+    if kind == "compound":       # raised in the middle, a little dermal pigment
+        b.f["height"] += rng.uniform(0.3, 1.0) * smoothstep(-R * 0.1, R * 0.8, sd)
         b.f["dermal_melanin"] += 0.01 * w
+    elif kind == "intradermal":  # a soft dome, smoother than the skin round it
+        b.f["height"] += min(rng.uniform(0.5, 1.5), 0.5 * R) * smoothstep(-R * 0.2, R * 0.9, sd)
+        b.f["dermal_melanin"] += 0.005 * w
+        b.f["detail"] *= 1 - 0.4 * w
     b.outline(w, 0.4)
-    return {}
+    return {"type": kind}
 
 
 def _melanoma(b, rng, R):
