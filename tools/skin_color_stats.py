@@ -19,12 +19,13 @@ instances in an image taken together, by the ``kind`` each image's record gives)
 """
 import argparse
 import collections
-import glob
 import json
 import os
 
 import cv2
 import numpy as np
+
+from glsynth import dataformat as fmt
 
 REAL_MASKS = ("lesions.png", "nonskin.png", "selected_lesion.png")
 SHORT = 512
@@ -73,14 +74,18 @@ def _resized(img, *masks):
             *(cv2.resize(m.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0 for m in masks))
 
 
+def _semantic(folder, sid):
+    sem = cv2.imread(fmt.layer_path(folder, sid, "semantic"), cv2.IMREAD_GRAYSCALE)
+    if sem is None:
+        raise SystemExit(f"{folder}: no semantic target for {sid}")
+    return sem
+
+
 def synthetic(folder):
     out = []
-    for f in sorted(glob.glob(os.path.join(folder, "images", "*.png"))):
-        sid = os.path.basename(f)[:-4]
-        sem = cv2.imread(os.path.join(folder, "targets", f"{sid}_semantic.png"), cv2.IMREAD_GRAYSCALE)
-        if sem is None:
-            raise SystemExit(f"{folder}: no semantic target for {sid}")
-        img, skin, lesion = _resized(cv2.imread(f), sem == 1, sem == 2)
+    for sid in fmt.sample_ids(folder):
+        sem = _semantic(folder, sid)
+        img, skin, lesion = _resized(cv2.imread(fmt.image_path(folder, sid)), sem == 1, sem == 2)
         out.append((spread(img, skin), contrast(img, lesion, skin), shade(img, skin)))
     return out
 
@@ -88,19 +93,19 @@ def synthetic(folder):
 def by_kind(folder):
     """{lesion kind: [Lab contrast per image showing that kind]} over a glsynth output."""
     out = collections.defaultdict(list)
-    for f in sorted(glob.glob(os.path.join(folder, "images", "*.png"))):
-        sid = os.path.basename(f)[:-4]
-        with open(os.path.join(folder, "targets", f"{sid}.json")) as fh:
+    for sid in fmt.sample_ids(folder):
+        with open(fmt.record_path(folder, sid)) as fh:
             kinds = collections.defaultdict(list)
             for item in json.load(fh).get("lesions", []):
                 kinds[item["source"].get("kind", "real")].append(item["instance"])
         if not kinds:
             continue
-        sem = cv2.imread(os.path.join(folder, "targets", f"{sid}_semantic.png"), cv2.IMREAD_GRAYSCALE)
-        ins = cv2.imread(os.path.join(folder, "targets", f"{sid}_instances.png"), cv2.IMREAD_UNCHANGED)
-        image = cv2.imread(f)
-        for kind, ids in kinds.items():
-            img, skin, lesion = _resized(image, sem == 1, np.isin(ins, ids))
+        sem = _semantic(folder, sid)
+        ins = cv2.imread(fmt.layer_path(folder, sid, "instances"), cv2.IMREAD_UNCHANGED)
+        # the image resized once, with the skin and each kind's lesion mask
+        img, skin, *lesions = _resized(cv2.imread(fmt.image_path(folder, sid)), sem == 1,
+                                       *(np.isin(ins, ids) for ids in kinds.values()))
+        for kind, lesion in zip(kinds, lesions):
             c = contrast(img, lesion, skin)
             if c is not None:
                 out[kind].append(c)
