@@ -1860,7 +1860,6 @@ def apply_to_skin(fields: LesionFields, skin_rgb_uint8: np.ndarray, at=None) -> 
     # as much as on skin at 2% (rendered plaques: a* 2.4 above their skin against 7.4 in
     # the dev photographs). The flush still blanches with the skin's blood and fades
     # under added melanin.
-    own = blood * vals["blood"]
     base = np.minimum(blood, HEALTHY_BLOOD) * vals["blood"]
     model = skin_rgb_fast(mel, np.clip(base + vals["blood_add"], 0, 0.7),
                           vals["oxygen"], vals["bilirubin"], vals["dermal_melanin"], vals["epidermis"],
@@ -1868,8 +1867,8 @@ def apply_to_skin(fields: LesionFields, skin_rgb_uint8: np.ndarray, at=None) -> 
     lab = srgb_to_lab(model) + residual * np.clip(vals["epidermis"], 0.3, 1.0)[:, None]
     flushed = np.flatnonzero(blood > HEALTHY_BLOOD)
     if flushed.size:
-        m, o = mel[flushed], vals["oxygen"][flushed]
-        lab[flushed] += srgb_to_lab(skin_rgb_fast(m, np.clip(own[flushed], 0, 0.7), o)) \
+        m, o, own = mel[flushed], vals["oxygen"][flushed], blood[flushed] * vals["blood"][flushed]
+        lab[flushed] += srgb_to_lab(skin_rgb_fast(m, np.clip(own, 0, 0.7), o)) \
             - srgb_to_lab(skin_rgb_fast(m, base[flushed], o))
     out = lab_to_srgb(lab)
     # thick, old crust darkens towards the brown-red of dried blood and serum
