@@ -1317,21 +1317,27 @@ def test_seborrhoeic_keratosis_is_stuck_on_with_dark_keratin_in_its_fissures(rng
         assert np.median(mel[low]) > 1.1 * np.median(mel[high]), seed
 
 
+def _lightness_drop(f, seed):
+    """How far the median L* of condition ``f`` on type II reference skin lies below
+    that of the skin round it (more than 4 cells out)."""
+    from glsynth.assets.colour import srgb_to_lab
+    from glsynth.assets.lesions import reference_skin
+    from glsynth.assets.morphology import apply_to_skin
+    L = srgb_to_lab(apply_to_skin(f, reference_skin(2, f.size, np.random.default_rng(seed))))[..., 0]
+    return np.median(L[~ndimage.binary_dilation(f.mask, iterations=4)]) - np.median(L[f.mask])
+
+
 def test_naevi_are_tan_to_dark_brown_or_skin_coloured_domes(rng):
     """Junctional naevi are flat, tan to dark brown; compound ones raised in the middle
     and darker; intradermal ones domes nearly the skin's colour. On type II skin in 120
     draws the median L* drops by 8-43 / 17-48 / 3-15 (until 2026-12-07 every naevus
     dropped by 28-49)."""
-    from glsynth.assets.colour import srgb_to_lab
-    from glsynth.assets.lesions import reference_skin
-    from glsynth.assets.morphology import apply_to_skin, make_condition
+    from glsynth.assets.morphology import make_condition
     drop, raised = {}, {}
     for seed in rng.integers(2 ** 31, size=48):
         f = make_condition("nevus", [int(seed)], size=96)
-        L = srgb_to_lab(apply_to_skin(f, reference_skin(2, f.size, np.random.default_rng(seed))))[..., 0]
-        skin = ~ndimage.binary_dilation(f.mask, iterations=4)
         kind = f.params["type"]
-        drop.setdefault(kind, []).append(np.median(L[skin]) - np.median(L[f.mask]))
+        drop.setdefault(kind, []).append(_lightness_drop(f, seed))
         raised.setdefault(kind, []).append(f.f["height"][f.mask].max())
     assert set(drop) == {"junctional", "compound", "intradermal"}
     assert max(raised["junctional"]) == 0 and min(raised["compound"] + raised["intradermal"]) > 0.25
@@ -1345,16 +1351,9 @@ def test_seborrhoeic_keratoses_range_from_light_tan_to_dark_brown(rng):
     """On type II skin, a seborrhoeic keratosis's median L* lies 9-46 below the skin's
     (5th-95th percentile of 96 draws), 31% within 15 and 29% more than 30 below (until
     2026-12-07 none within 15, 81% more than 30 below: nearly all black-brown)."""
-    from glsynth.assets.colour import srgb_to_lab
-    from glsynth.assets.lesions import reference_skin
-    from glsynth.assets.morphology import apply_to_skin, make_condition
-    drop = []
-    for seed in rng.integers(2 ** 31, size=64):
-        f = make_condition("seborrhoeic_keratosis", [int(seed)], size=96)
-        L = srgb_to_lab(apply_to_skin(f, reference_skin(2, f.size, np.random.default_rng(seed))))[..., 0]
-        skin = ~ndimage.binary_dilation(f.mask, iterations=4)
-        drop.append(np.median(L[skin]) - np.median(L[f.mask]))
-    drop = np.array(drop)
+    from glsynth.assets.morphology import make_condition
+    drop = np.array([_lightness_drop(make_condition("seborrhoeic_keratosis", [int(seed)], size=96), seed)
+                     for seed in rng.integers(2 ** 31, size=64)])
     assert (drop < 15).mean() >= 0.12 and (drop > 30).mean() >= 0.1
     assert 10 < np.median(drop) < 30 and drop.min() > 0
 
