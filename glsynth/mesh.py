@@ -26,7 +26,8 @@ class SkinSurface:
     """What the skin shading's micro-detail needs from a body (shaders/skin.frag).
 
     params: H x W x 4 uint8 map in the body's UV space: relief, pores, hair density
-    (0 none, 0.25 vellus only, up to 1 dense terminal hair) and oiliness, each 0..255.
+    (0 none, 0.25 vellus only, up to 1 dense terminal hair), each 0..255, and the skin's
+    surface lipids: oiliness or, in the lowest codes, dryness (assets.detail.lipid_codes).
     weight: H x W uint8 detail weight at the colour texture's resolution (255 healthy
     skin, 0 non-skin; uploaded as the colour texture's alpha), or None for 255.
     hair_coords: (F, 3, 2) float32 hair-flow coordinates of each face's corners (scene

@@ -42,6 +42,7 @@
 #define PI 3.14159265
 #define F0 0.028
 #define HAIR_RATIO 1.618   // scale of the second hair layer
+#define FLAKE vec3(0.84, 0.81, 0.76)   // keratin flakes of dry skin, linear (sRGB 236, 232, 226: white scale)
 uniform sampler2D u_texture;       // sRGB albedo, alpha = detail weight
 uniform vec3 u_eye;
 uniform vec3 u_light_pos[NUM_LIGHTS];
@@ -56,7 +57,10 @@ uniform float u_wrap;              // Material.wrap
 uniform float u_pixel_angle;       // footprint of a pixel per unit of depth
 flat in vec3 g_ao;                 // ambient occlusion at the face's corners
 #if DETAIL
-uniform sampler2D u_params;        // R relief, G pores, B hair density, A oiliness
+uniform sampler2D u_params;        // R relief, G pores, B hair density, A lipids (oiliness or xerosis)
+uniform float u_xerosis_codes;     // A below this is dry skin, above it sebum (detail.XEROSIS_CODES / 255)
+uniform sampler2D u_flakes;        // xerosis flakes on the relief tile's texels: R opacity, G lifting
+uniform float u_flake_patch_scale; // G is read this much larger (detail.FLAKE_PATCH_SCALE)
 uniform sampler2D u_relief;        // relief tile (half floats): RG slope, B albedo change, A pore
 uniform float u_relief_period;     // scene units per relief tile
 uniform float u_relief_size;       // texels per relief tile
@@ -246,7 +250,9 @@ void main() {
 #if DETAIL
     vec4 body_prm = texture(u_params, vec2(uv.x, 1.0 - uv.y));
     vec4 prm = body_prm * min(detail_weight, 1.0);
-    oil = prm.a * u_oil;
+    // the lipid axis: sebum above u_xerosis_codes, dry skin below it
+    oil = clamp((body_prm.a - u_xerosis_codes) / (1.0 - u_xerosis_codes), 0.0, 1.0) * min(detail_weight, 1.0) * u_oil;
+    float dry = clamp(1.0 - body_prm.a / u_xerosis_codes, 0.0, 1.0) * min(detail_weight, 1.0);
     float lod = log2(max(footprint / u_relief_period * u_relief_size, 1e-6));
     // the tile projected along the two world axes nearest the normal (two lookups, not
     // three), each weighted by how much more it faces the normal than the third axis:
@@ -289,6 +295,18 @@ void main() {
     float tone = dot(w, vec2(p1.b, p2.b));
     float pore = dot(w, vec2(p1.a, p2.a));
     albedo *= (1.0 + min(relief, 1.0) * tone) * (1.0 - 0.6 * prm.g * (pore - u_pore_mean));
+    // xerosis: keratin plates lifting in patches along the skin's lines, white at their
+    // edges, and the dry horny layer a little dull and ashy everywhere (linear in the
+    // flakes' opacity, so the mipmaps' average is what a far view should see)
+    if (dry > 0.0) {
+        float plates = w.x * tile_at(u_flakes, w.x, world, u1, v1, u_relief_period, lod).r
+                       + w.y * tile_at(u_flakes, w.y, world, u2, v2, u_relief_period, lod).r;
+        float patch_period = u_relief_period * u_flake_patch_scale;
+        float patch_lod = lod - log2(u_flake_patch_scale);
+        float lifting = w.x * tile_at(u_flakes, w.x, world, u1, v1, patch_period, patch_lod).g
+                        + w.y * tile_at(u_flakes, w.y, world, u2, v2, patch_period, patch_lod).g;
+        albedo = mix(albedo, FLAKE, dry * (0.02 + 0.3 * plates * (0.35 + 0.65 * smoothstep(0.3, 0.8, lifting))));
+    }
     // the mesoscale tile along the same axes: the surface's soft undulation, and melanin
     // and blood mottling as absorbance (melanin absorbs more towards blue, blood in
     // green; blood shows less through more melanin, as in glsynth.assets.skin)

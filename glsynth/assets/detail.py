@@ -15,7 +15,9 @@ views see their average and close-ups their structure:
   Floats keep the tile's means exact (8 bits would tilt a far view's normal by the
   rounding of the mean slope). The shader projects it from 3D positions along the two
   world axes nearest the surface normal (shaders/skin.frag), so it needs no UVs and has
-  no seams.
+  no seams. With it, on the same texels, the **flakes** of dry skin (xerosis): the
+  opacity of keratin plates lifting along its furrows, which the shader lays over skin
+  whose parameter map codes it as dry (``lipid_codes``).
 * the **hair tile** (``HAIR_PERIOD`` metres square) holds hair strands lying along the
   tile's +x (the hair-flow direction, see :func:`hair_coordinates`), as coverage in four
   groups: R, G terminal hair (long, thick), B, A vellus hair (short, fine). A body's hair
@@ -64,19 +66,34 @@ CREASE_SIZE = 1024        # texels (23 um each)
 COARSE_CREASE_SCALE = 3.3  # the crease tile's second reading: deep creases
 MESO_PERIOD = 0.096       # metres covered by one mesoscale tile
 MESO_SIZE = 512           # texels (0.19 mm each)
+# The skin parameter map's A channel is one axis of the skin's surface lipids: codes
+# from XEROSIS_CODES up are sebum (oiliness 0 to 1 over XEROSIS_CODES..255), codes below
+# it xerosis, dry and flaking skin (dryness 1 at code 0), so that where filtering mixes
+# an oily texel with a dry one the two meet at neither (see ``lipid_codes``)
+XEROSIS_CODES = 32
+FLAKE_PATCH_SCALE = 7.3   # the flake tile's patch channel is read this much larger (incommensurate)
 # skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
-# only, moderate sebum (RGBA: relief, pores, hair density, oiliness)
-DEFAULT_PARAMS = (140, 80, 64, 100)
+# only, moderate sebum, oiliness 0.39 (RGBA: relief, pores, hair density, lipids)
+DEFAULT_PARAMS = (140, 80, 64, 119)
+
+
+def lipid_codes(oil, dry):
+    """The parameter map's A channel (uint8) for oiliness and dryness (0..1 each): sebum
+    makes up for dryness, so the code follows their difference (``XEROSIS_CODES``)."""
+    s = np.clip(oil, 0.0, 1.0) - np.clip(dry, 0.0, 1.0)
+    code = np.where(s >= 0, XEROSIS_CODES + (255 - XEROSIS_CODES) * s, XEROSIS_CODES * (1 + s))
+    return np.clip(np.rint(code), 0, 255).astype(np.uint8)
 
 
 @dataclass(frozen=True)
 class DetailTiles:
     """The four tiles (relief, crease and mesoscale float16 RGBA, hair uint8 RGBA; row 0 =
-    tile y 0) and their physical periods."""
+    tile y 0), the relief tile's xerosis flakes (uint8) and their physical periods."""
     relief: np.ndarray
     hair: np.ndarray
     crease: np.ndarray
     meso: np.ndarray
+    flakes: np.ndarray
     relief_period: float = RELIEF_PERIOD
     hair_period: float = HAIR_PERIOD
     crease_period: float = CREASE_PERIOD
@@ -181,7 +198,23 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
     speckle = 0.6 * _periodic_noise(rng, size, 60.0 / um) + 0.4 * _periodic_noise(rng, size, 180.0 / um)
     shade = -0.12 * cavity + 0.06 * speckle
     shade -= shade.mean()
-    return np.stack([gx, gy, shade, np.clip(pores, 0, 1)], -1).astype(np.float16)
+    tile = np.stack([gx, gy, shade, np.clip(pores, 0, 1)], -1).astype(np.float16)
+    return tile, _flakes(np.random.default_rng([seed, 5]), cavity, um)
+
+
+def _flakes(rng, cavity, um):
+    """Xerosis on the relief tile (uint8, same size and period): R the opacity of the
+    thin, translucent plates the dry horny layer comes away in, bounded by the skin's
+    lines: a faint veil on the plateau (a tenth) and a band some 20-60 um wide along its furrows,
+    where the plate's edge lifts off and catches the light; G which of them lift, as
+    noise with features a quarter of a millimetre, that the shader reads FLAKE_PATCH_SCALE
+    times larger (patches of lifting plates a millimetre or two across, without the
+    tile's period showing). Mipmaps average both, so far views see dry skin's even,
+    ashy whitening."""
+    size = cavity.shape[0]
+    edge = np.clip(_wrap_blur(cavity, 20 / um) / 0.35, 0, 1)
+    lifted = np.clip(0.5 + 0.3 * _periodic_noise(rng, size, 250 / um), 0, 1)
+    return np.rint(255 * np.stack([0.1 + 0.9 * edge, lifted], -1)).astype(np.uint8)
 
 
 def _slopes(height, um):
@@ -285,4 +318,5 @@ def _hair_tile(seed=0, size=HAIR_SIZE, period=HAIR_PERIOD):
 def detail_tiles(seed: int = 0) -> DetailTiles:
     """The relief, hair, crease and mesoscale tiles for ``seed``, made once per process
     (~5 s on 2 cores, ~2.7 s of it the relief, ~1.5 s the creases)."""
-    return DetailTiles(_relief_tile(seed), _hair_tile(seed), _crease_tile(seed), _meso_tile(seed))
+    relief, flakes = _relief_tile(seed)
+    return DetailTiles(relief, _hair_tile(seed), _crease_tile(seed), _meso_tile(seed), flakes)

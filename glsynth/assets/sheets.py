@@ -80,7 +80,7 @@ def condition_patch(fields, fitzpatrick, rng, texture_size=256):
                     np.stack([view[0, :3], -view[1, :3]])[None], np.array([2 * half / size]),
                     colour[None], aux[None], fields.instances[None])
     params = np.zeros((8, 8, 4), np.uint8)
-    params[:] = (150, 90, 64, 110)
+    params[:] = (150, 90, 64, 128)            # oiliness 0.43 (detail.lipid_codes)
     hair = v[f][..., :2].astype(np.float32)
     return gs.Mesh(v, f, uvs=uv, texture=texture, name="condition-patch",
                    skin=SkinSurface(params, None, hair, (60, 45, 35)), decals=decals)

@@ -32,12 +32,14 @@ from scipy import ndimage
 from ..rows import by_rows
 from .chromophores import melanin_slope
 from .colour import ita_range, lab_to_srgb
+from .detail import lipid_codes
 
 log = logging.getLogger(__name__)
 
 # Part-score channels interpolated per texel (sums of the 16 anatomy parts' weights).
 CHANNELS = {"head": (1,), "torso": (2, 3), "hips": (4,), "legs": (5, 6, 7, 8),
-            "feet": (9, 10), "arms": (11, 12, 13, 14), "hands": (15, 16)}
+            "feet": (9, 10), "arms": (11, 12, 13, 14), "hands": (15, 16),
+            "lower_legs": (7, 8), "forearms": (13, 14)}
 
 HAIR_COLOURS = {  # sRGB
     "black": (28, 24, 22), "dark-brown": (52, 38, 30), "brown": (88, 62, 42),
@@ -565,6 +567,21 @@ class _Painter:
         return (_ageing(self.look.age, start=0.6) * _photoprotection(self.look.ita)
                 * np.clip(self._exposed() + 0.5 * up, 0, 1))
 
+    def _xerosis(self, palms):
+        """Per texel 0..1: dry, flaking skin (xerosis). Most old people have it, worst
+        on the shins, then the backs of the feet, hands and forearms, milder on the
+        thighs, upper arms and trunk; skin that makes little sebum (``Look.oily``, which
+        falls with age) is drier, so some younger bodies have a little on their shins.
+        From the part scores, so it fades across a joint instead of stopping at a label
+        border."""
+        ch, look = self.tx.ch, self.look
+        region = (1.0 * ch["lower_legs"] + 0.35 * (ch["legs"] - ch["lower_legs"])
+                  + 0.7 * ch["feet"] * (1 - palms) + 0.6 * ch["hands"] * (1 - palms)
+                  + 0.6 * ch["forearms"] + 0.3 * (ch["arms"] - ch["forearms"])
+                  + 0.25 * (ch["torso"] + ch["hips"]))
+        body = np.clip(0.9 * _ageing(look.age, start=0.6) + 0.5 * (0.4 - look.oily), 0, 1)
+        return np.clip(region, 0, 1) * body
+
     def detail_params(self, nevi_mask):
         """Per texel: the skin shading's relief, pore, hair-density and oiliness levels
         (uint8 RGBA, see glsynth.mesh.SkinSurface) and the detail weight (uint8: 255 on
@@ -607,6 +624,7 @@ class _Painter:
         hair = np.where(palms > 0.5, 0.0, 0.25 + 0.75 * np.clip(terminal, 0, 1))
         oil = (0.25 + 0.65 * tzone + 0.2 * face + 0.2 * ch["torso"] * (1 - ch["head"])
                - 0.15 * (shin + ch["feet"])) * (0.5 + look.oily)
+        dry = self._xerosis(palms)          # (its sebum makes up for dryness: lipid_codes)
         size = tx.size
         lips = tx.sample(_mpfb_mask("lips", size))
         nails = np.maximum(tx.sample(_mpfb_mask("fingernails", size)), tx.sample(_mpfb_mask("toenails", size)))
@@ -614,8 +632,9 @@ class _Painter:
         hair = hair * (1 - np.clip(lips + nails, 0, 1))
         if self.hair_quality is not None:   # terminal hair goes first, then vellus
             hair = hair * tx.interp(self.hair_quality)
-        params = np.stack([relief, pores, hair, oil], 1)
+        params = np.stack([relief, pores, hair], 1)
         params = np.clip(np.rint(np.clip(params, 0, 1) * 255), 0, 255).astype(np.uint8)
+        params = np.concatenate([params, lipid_codes(oil, dry)[:, None]], 1)
         weight = (1 - self.alpha) * (1 - 0.6 * lips) * (1 - nails) * (1 - 0.3 * areolae) * (1 - 0.5 * nevi_mask)
         return params, np.clip(np.rint(weight * 255), 0, 255).astype(np.uint8)
 

@@ -16,7 +16,7 @@ import cv2
 import moderngl
 import numpy as np
 
-from ..assets.detail import COARSE_CREASE_SCALE, MACRO_SCALE, MACRO_WEIGHT
+from ..assets.detail import COARSE_CREASE_SCALE, FLAKE_PATCH_SCALE, MACRO_SCALE, MACRO_WEIGHT, XEROSIS_CODES
 from ..assets.hairflow import t_scale_at_corners
 from ..camera import Camera
 from ..errors import InputError
@@ -32,7 +32,7 @@ GBUFFER_LAYERS = ("face_id", "depth", "bary", "uv")
 MAX_LABEL_MAPS = 4  # one four-channel uint16 target
 # texture units: 0 colour, 1 shadow map, 2-5 label maps, then the skin shading's
 # parameter map, relief tile, hair tile, crease tile and (after the decals') mesoscale tile
-SKIN_UNITS = (6, 7, 8, 9, 15)
+SKIN_UNITS = (6, 7, 8, 9, 15, 16)
 # lesion decals (shaders/decal.glsl): region map, per-decal info, colour, aux, ids
 DECAL_UNITS = {"u_decal_region": 10, "u_decal_info": 11, "u_decal_colour": 12, "u_decal_aux": 13,
                "u_decal_ids": 14}
@@ -424,6 +424,7 @@ class Renderer:
             prog = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
             _set_units(prog, {"u_shadow_map": 1, "u_params": SKIN_UNITS[0], "u_relief": SKIN_UNITS[1],
                               "u_hair": SKIN_UNITS[2], "u_crease": SKIN_UNITS[3], "u_meso": SKIN_UNITS[4],
+                              "u_flakes": SKIN_UNITS[5],
                               **DECAL_UNITS})
             self.programs[key] = prog
         return key
@@ -436,8 +437,10 @@ class Renderer:
             from ..assets.detail import DEFAULT_PARAMS, detail_tiles
             t = detail_tiles()
             out = {}
-            for name, img in (("relief", t.relief), ("hair", t.hair), ("crease", t.crease), ("meso", t.meso)):
-                tex = self.ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(img).tobytes(),
+            for name, img in (("relief", t.relief), ("hair", t.hair), ("crease", t.crease), ("meso", t.meso),
+                              ("flakes", t.flakes)):
+                tex = self.ctx.texture((img.shape[1], img.shape[0]), img.shape[2] if img.ndim == 3 else 1,
+                                       np.ascontiguousarray(img).tobytes(),
                                        dtype="f2" if img.dtype == np.float16 else "f1")
                 tex.build_mipmaps()
                 # the nearest mip level, filtered bilinearly: half the texel reads of
@@ -713,13 +716,15 @@ class Renderer:
             tiles["hair"].use(SKIN_UNITS[2])
             tiles["crease"].use(SKIN_UNITS[3])
             tiles["meso"].use(SKIN_UNITS[4])
+            tiles["flakes"].use(SKIN_UNITS[5])
             values.update(u_relief_period=t.relief_period * unit, u_relief_size=float(t.relief.shape[0]),
                           u_pore_mean=tiles["pore_mean"], u_macro_scale=MACRO_SCALE,
                           u_macro_weight=MACRO_WEIGHT, u_hair_period=t.hair_period * unit,
                           u_hair_size=float(t.hair.shape[0]), u_unit=unit,
                           u_crease_period=t.crease_period * unit, u_crease_size=float(t.crease.shape[0]),
                           u_coarse_crease_scale=COARSE_CREASE_SCALE, u_meso_period=t.meso_period * unit,
-                          u_meso_size=float(t.meso.shape[0]))
+                          u_meso_size=float(t.meso.shape[0]), u_xerosis_codes=XEROSIS_CODES / 255.0,
+                          u_flake_patch_scale=FLAKE_PATCH_SCALE)
             if mesh.skin is not None:
                 values["u_hair_rgb"] = tuple(c / 255.0 for c in mesh.skin.hair_rgb)
                 values["u_hair_curl"] = float(mesh.skin.hair_curl)
