@@ -1298,9 +1298,14 @@ def _wart(b, rng, R):
     else:
         centres = arrange(c, "grouped", int(rng.integers(6, 20)), R * 0.9, R * 0.1)
         radii = list(R * rng.uniform(0.12, 0.25, len(centres)))
-    frond = float(np.clip(R / 8, 0.3, 0.8))                 # mm across one frond
+    frond = float(np.clip(R / 10, 0.25, 0.6))               # mm across one frond
     wall, tip, _ = b.cells(frond)
-    fronds = smoothstep(0.0, 0.5, wall) * (0.7 + 0.3 * tip)   # a cone per cell
+    # papillae packed base to base: steep cones, each its own height, the clefts between
+    # them narrow (smooth cones a millimetre across, until 2026-12-07, read as a scoop
+    # of clay), with the keratin's own fine roughness on them
+    cone = smoothstep(0.02, 0.5, wall)
+    fronds = cone ** 1.5 * (0.6 + 0.4 * tip)
+    rough = c.noise(max(0.08, frond * 0.25), 1)
     keratin = (188, 174, 150)
     # thrombosed capillaries: black dots a quarter to half a millimetre, in the valleys
     speckle = c.noise(max(0.25, frond * 0.6), 1)
@@ -1310,10 +1315,13 @@ def _wart(b, rng, R):
         w = b.weight(sd, r * 0.1)
         dome = smoothstep(-r * 0.05, r * 0.5, sd)
         h = min(rng.uniform(0.25, 0.45) * r, 2.0)
-        b.f["height"] = np.maximum(b.f["height"], w * (h * dome + 0.25 * fronds))
-        b.f["scale"] = np.maximum(b.f["scale"], w * (0.12 + 0.3 * fronds) * rng.uniform(0.6, 1.0))
+        b.f["height"] = np.maximum(b.f["height"], w * (h * dome + 0.35 * fronds + 0.03 * rough))
+        # keratin thick and grey-white on the tips, thin in the clefts, where the
+        # capillary loops of the papillae show: darker and a little red-brown there
+        b.f["scale"] = np.maximum(b.f["scale"], w * (0.12 + 0.55 * fronds) * rng.uniform(0.7, 1.0))
         b.f["detail"] *= 1 - 0.8 * w
-        b.f["melanin"] *= 1 + 0.3 * w * (1 - fronds)        # darker between the fronds
+        b.f["melanin"] *= 1 + 0.4 * w * (1 - cone)
+        b.f["blood_add"] += 0.04 * w * (1 - cone)
         cover = np.maximum(cover, w * dome)
         b.outline(w, 0.4, instance=1 if kind == "mosaic" else None)
     # the noise's peaks, but at least the top 3% of the warts' tops: a few small warts
