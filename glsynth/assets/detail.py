@@ -205,8 +205,8 @@ def _relief_tile(seed=0, size=RELIEF_SIZE, period=RELIEF_PERIOD):
 def _flakes(rng, cavity, um):
     """Xerosis on the relief tile (uint8, same size and period): R the opacity of the
     thin, translucent plates the dry horny layer comes away in, bounded by the skin's
-    lines: a faint veil on the plateau (a tenth) and a band some 20-60 um wide along its furrows,
-    where the plate's edge lifts off and catches the light; G which of them lift, as
+    lines: a faint veil on the plateau (opacity 0.1) and a band some 20-60 um wide
+    along its furrows, where the plate's edge lifts off and catches the light; G which of them lift, as
     noise with features a quarter of a millimetre, that the shader reads FLAKE_PATCH_SCALE
     times larger (patches of lifting plates a millimetre or two across, without the
     tile's period showing). Mipmaps average both, so far views see dry skin's even,

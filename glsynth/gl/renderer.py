@@ -31,7 +31,8 @@ PASSES = ("gbuffer", "rgb", "labels")
 GBUFFER_LAYERS = ("face_id", "depth", "bary", "uv")
 MAX_LABEL_MAPS = 4  # one four-channel uint16 target
 # texture units: 0 colour, 1 shadow map, 2-5 label maps, then the skin shading's
-# parameter map, relief tile, hair tile, crease tile and (after the decals') mesoscale tile
+# parameter map, relief tile, hair tile, crease tile and (after the decals') mesoscale and
+# flake tiles
 SKIN_UNITS = (6, 7, 8, 9, 15, 16)
 # lesion decals (shaders/decal.glsl): region map, per-decal info, colour, aux, ids
 DECAL_UNITS = {"u_decal_region": 10, "u_decal_info": 11, "u_decal_colour": 12, "u_decal_aux": 13,
@@ -430,7 +431,7 @@ class Renderer:
         return key
 
     def _detail_tiles(self):
-        """The relief, hair, crease and mesoscale tiles (glsynth.assets.detail) as repeating, mipmapped
+        """The relief, hair, crease, mesoscale and flake tiles (glsynth.assets.detail) as repeating, mipmapped
         textures, made on first use; and a 1x1 skin parameter map for meshes without
         a SkinSurface."""
         if self._tiles is None:
@@ -439,8 +440,7 @@ class Renderer:
             out = {}
             for name, img in (("relief", t.relief), ("hair", t.hair), ("crease", t.crease), ("meso", t.meso),
                               ("flakes", t.flakes)):
-                tex = self.ctx.texture((img.shape[1], img.shape[0]), img.shape[2] if img.ndim == 3 else 1,
-                                       np.ascontiguousarray(img).tobytes(),
+                tex = self.ctx.texture((img.shape[1], img.shape[0]), img.shape[2], np.ascontiguousarray(img).tobytes(),
                                        dtype="f2" if img.dtype == np.float16 else "f1")
                 tex.build_mipmaps()
                 # the nearest mip level, filtered bilinearly: half the texel reads of
