@@ -1331,7 +1331,10 @@ def test_naevi_are_tan_to_dark_brown_or_skin_coloured_domes(rng):
     """Junctional naevi are flat, tan to dark brown; compound ones raised in the middle
     and darker; intradermal ones domes nearly the skin's colour. On type II skin in 120
     draws the median L* drops by 8-43 / 17-48 / 3-15 (until 2026-12-07 every naevus
-    dropped by 28-49)."""
+    dropped by 28-49). A third of naevi drop by under 12 and a third by over 25 (1,500
+    draws); 48 draws hold at least a twentieth of each (test seed 3054071738 drew only 5
+    intradermal naevi and 3 drops under 12, 0.0625, which failed the tenth asked until
+    then; at 0.05 a bootstrap puts a failure below 1 in 10,000)."""
     from glsynth.assets.morphology import make_condition
     drop, raised = {}, {}
     for seed in rng.integers(2 ** 31, size=48):
@@ -1344,7 +1347,7 @@ def test_naevi_are_tan_to_dark_brown_or_skin_coloured_domes(rng):
     assert 0 < min(drop["intradermal"]) and max(drop["intradermal"]) < 18
     assert min(drop["junctional"] + drop["compound"]) > 5 and np.median(drop["compound"]) > 20
     spread = np.concatenate(list(drop.values()))
-    assert (spread < 12).mean() > 0.1 and (spread > 25).mean() > 0.1
+    assert (spread < 12).mean() > 0.05 and (spread > 25).mean() > 0.05
 
 
 def test_seborrhoeic_keratoses_range_from_light_tan_to_dark_brown(rng):
