@@ -249,10 +249,11 @@ void main() {
 #endif
 #if DETAIL
     vec4 body_prm = texture(u_params, vec2(uv.x, 1.0 - uv.y));
-    vec4 prm = body_prm * min(detail_weight, 1.0);
+    float skin_share = min(detail_weight, 1.0);
+    vec4 prm = body_prm * skin_share;
     // the lipid axis: sebum above u_xerosis_codes, dry skin below it
-    oil = clamp((body_prm.a - u_xerosis_codes) / (1.0 - u_xerosis_codes), 0.0, 1.0) * min(detail_weight, 1.0) * u_oil;
-    float dry = clamp(1.0 - body_prm.a / u_xerosis_codes, 0.0, 1.0) * min(detail_weight, 1.0);
+    oil = clamp((body_prm.a - u_xerosis_codes) / (1.0 - u_xerosis_codes), 0.0, 1.0) * skin_share * u_oil;
+    float dry = clamp(1.0 - body_prm.a / u_xerosis_codes, 0.0, 1.0) * skin_share;
     float lod = log2(max(footprint / u_relief_period * u_relief_size, 1e-6));
     // the tile projected along the two world axes nearest the normal (two lookups, not
     // three), each weighted by how much more it faces the normal than the third axis:
@@ -325,7 +326,7 @@ void main() {
     grad += relief * (wm.x * (m1.r * u1 + m1.g * v1) + wm.y * (m2.r * u2 + m2.g * v2));
     float pigment = dot(wm, vec2(m1.b, m2.b)), blood = dot(wm, vec2(m1.a, m2.a));
     float blood_shows = clamp(3.0 * albedo.g, 0.3, 1.0);
-    albedo *= exp(-min(detail_weight, 1.0) * (pigment * vec3(0.6, 0.85, 1.0)
+    albedo *= exp(-skin_share * (pigment * vec3(0.6, 0.85, 1.0)
                                               + blood_shows * blood * vec3(0.1, 1.0, 0.6)));
 #if HAIR
     // hair-flow frame of this face: dp/ds (along the hairs) and dp/dt

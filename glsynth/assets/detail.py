@@ -72,9 +72,6 @@ MESO_SIZE = 512           # texels (0.19 mm each)
 # an oily texel with a dry one the two meet at neither (see ``lipid_codes``)
 XEROSIS_CODES = 32
 FLAKE_PATCH_SCALE = 7.3   # the flake tile's patch channel is read this much larger (incommensurate)
-# skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
-# only, moderate sebum, oiliness 0.39 (RGBA: relief, pores, hair density, lipids)
-DEFAULT_PARAMS = (140, 80, 64, 119)
 
 
 def lipid_codes(oil, dry):
@@ -83,6 +80,11 @@ def lipid_codes(oil, dry):
     s = np.clip(oil, 0.0, 1.0) - np.clip(dry, 0.0, 1.0)
     code = np.where(s >= 0, XEROSIS_CODES + (255 - XEROSIS_CODES) * s, XEROSIS_CODES * (1 + s))
     return np.clip(np.rint(code), 0, 255).astype(np.uint8)
+
+
+# skin parameters of a mesh without a SkinSurface: some relief and pores, vellus hair
+# only, moderate sebum (RGBA: relief, pores, hair density, lipids)
+DEFAULT_PARAMS = (140, 80, 64, int(lipid_codes(100 / 255, 0.0)))
 
 
 @dataclass(frozen=True)

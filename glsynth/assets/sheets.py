@@ -55,6 +55,7 @@ def condition_patch(fields, fitzpatrick, rng, texture_size=256):
     import glsynth as gs
     from ..mesh import SkinSurface, grid_faces
     from ..pipeline.decals import Decals, encode_aux, projection_rows
+    from .detail import lipid_codes
     from .lesions import reference_skin
     from .morphology import apply_to_skin
     half = fields.extent_mm / 2000.0
@@ -80,7 +81,7 @@ def condition_patch(fields, fitzpatrick, rng, texture_size=256):
                     np.stack([view[0, :3], -view[1, :3]])[None], np.array([2 * half / size]),
                     colour[None], aux[None], fields.instances[None])
     params = np.zeros((8, 8, 4), np.uint8)
-    params[:] = (150, 90, 64, 128)            # oiliness 0.43 (detail.lipid_codes)
+    params[:] = (150, 90, 64, lipid_codes(110 / 255, 0.0))
     hair = v[f][..., :2].astype(np.float32)
     return gs.Mesh(v, f, uvs=uv, texture=texture, name="condition-patch",
                    skin=SkinSurface(params, None, hair, (60, 45, 35)), decals=decals)
