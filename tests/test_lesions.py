@@ -855,6 +855,29 @@ def test_pyogenic_granuloma_is_a_crimson_dome(rng):
     assert np.median(tops) < 0.1, tops
 
 
+def test_pyogenic_granuloma_collarette_rings_part_of_the_base(rng):
+    """Where a pyogenic granuloma has a collarette, the scale lies round part of its base:
+    over draws, a median of at least a tenth of the base's directions (36 sectors) holds
+    none (~0.25 now). A full ring (0 sectors free, as until 2026-12-08) read as a white
+    outline drawn round every one."""
+    from glsynth.assets.morphology import make_condition
+    free = []
+    for seed in rng.integers(2 ** 31, size=24):
+        f = make_condition("pyogenic_granuloma", [int(seed)], size=160)
+        if not f.params["collarette"]:
+            continue
+        m = f.mask
+        cy, cx = ndimage.center_of_mass(m)
+        yy, xx = np.mgrid[:m.shape[0], :m.shape[1]]
+        base = ndimage.binary_dilation(m, iterations=4) & ~ndimage.binary_erosion(m, iterations=6)
+        sector = ((np.arctan2(yy - cy, xx - cx)[base] + np.pi) / (2 * np.pi) * 36).astype(int) % 36
+        most = np.zeros(36)
+        np.maximum.at(most, sector, f.f["scale"][base])
+        assert most.max() > 0.2, seed                     # a collarette, not nothing
+        free.append(np.mean(most < 0.05))
+    assert len(free) >= 4 and np.median(free) >= 0.1, free
+
+
 def test_old_crust_is_darker_and_uneven():
     """Crust is not a flat coat of paint: its colour varies across it and darkens where
     it is thick or old, towards dried blood's brown-red."""

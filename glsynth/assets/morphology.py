@@ -1023,45 +1023,58 @@ def _lupus(b, rng, R):
 
 def _pyogenic_granuloma(b, rng, R):
     """Pyogenic granuloma (lobular capillary haemangioma): a domed, friable papule,
-    crimson to raspberry (much blood, little collagen to scatter), smooth and glistening:
+    crimson to raspberry (much blood, little collagen to scatter), moist and glistening:
     its epidermis is stretched thin, so the skin's markings are gone from it, and it is
-    eroded in places, sometimes under dark dried blood. Three in five are lobulated,
-    with broad shallow dimples between two to four lobules; half have a fine collarette
-    of scale at the base. Round, so a flash leaves a small highlight on it."""
+    eroded in places, sometimes under dark dried blood. Its surface is granular, as
+    granulation tissue is: capillary lobules a few tenths of a millimetre across bulge
+    under it, each its own red, so a flash glints on many of them instead of leaving one
+    highlight on a smooth dome. Three in five are lobulated into two to four lobes
+    parted by pale fibrous septa; half have a collarette of scale round part of the
+    base."""
     c = b.c
     sd = c.shape("round", R, aspect=rng.uniform(0.8, 1.0), irregular=0.08, warp=0.0)
     w = b.weight(sd, R * 0.08)
     s = np.clip(sd / R, 0.0, 1.0)
-    # lobules: each its own shade from crimson to dark raspberry (its vessels more or
-    # less full and oxygenated), the surface dipping broadly between them; until
-    # 2026-11-29 every lesion had narrow clefts that, with the skin's markings left on
-    # it, made a wax seal of it. Unlobulated ones vary in shade smoothly
+    # lobes: each its own shade from crimson to dark raspberry (its vessels more or less
+    # full and oxygenated), parted by shallow clefts along pale septa of collagen (deep
+    # folds between smooth lobes, until 2026-12-08, read as a rubber balloon; narrow
+    # clefts with the skin's markings on them, until 2026-11-29, as a wax seal).
+    # Unlobulated ones vary in shade smoothly
     lobulated = rng.random() < 0.6
     if lobulated:
         wall, shade, _ = b.cells(R * rng.uniform(0.9, 1.4))
-        dimple = (1 - smoothstep(0.0, 0.3, wall)) * rng.uniform(0.5, 1.0)
+        dimple = (1 - smoothstep(0.0, 0.3, wall)) * rng.uniform(0.3, 0.6)
+        septa = (1 - smoothstep(0.0, 0.04, wall)) * rng.uniform(0.15, 0.35)
     else:
         dimple, shade = np.zeros_like(s), smoothstep(-1.0, 1.0, c.noise(R * 0.7, 1))
-    speckle = smoothstep(0.5, 1.5, c.noise(max(0.15, R * 0.04), 1))   # fine capillaries
+        septa = np.zeros_like(s)
+    # granules: capillary lobules 0.3-0.8 mm across bulging as low rounded lumps, the
+    # fuller ones redder
+    gran_mm = float(np.clip(R * rng.uniform(0.06, 0.12), 0.3, 0.8))
+    granule = smoothstep(-0.5, 1.2, c.noise(gran_mm, 1))
+    gran_fill = smoothstep(-1.0, 1.0, 0.6 * c.noise(gran_mm, 1) + 0.8 * granule - 0.4)
     raw = smoothstep(-0.4, 0.6, c.noise(R * 0.4, 2)) * rng.uniform(0.5, 1.0)   # eroded surface
     b.mix("epidermis", w, rng.uniform(0.3, 0.6))               # stretched thin over the dome
     b.erode(w * raw, 0.0)
     b.f["blood_add"] += w * ((rng.uniform(0.45, 0.75) - ERODED_BLOOD * raw) * (0.75 + 0.5 * shade)
-                             * (1 + 0.2 * dimple) + 0.1 * speckle)
+                             * (1 + 0.2 * dimple) * (1 - 0.6 * septa) * (0.8 + 0.4 * gran_fill)
+                             * (0.85 + 0.15 * granule))
     b.mix("oxygen", w, rng.uniform(0.8, 0.92) - 0.35 * shade * rng.uniform(0.4, 1.0) - 0.1 * dimple
-          - 0.08 * speckle)
-    b.mix("scatter", w, rng.uniform(0.08, 0.2))               # vessels, little collagen
+          - 0.1 * (1 - gran_fill))
+    b.mix("scatter", w, rng.uniform(0.08, 0.2) + 0.6 * septa)   # vessels, little collagen
     b.f["melanin"] *= 1 - 0.8 * w                              # the epidermis over it is thin
     b.f["detail"] *= 1 - 0.85 * w                              # stretched smooth
     dome = np.sqrt(s * (2 - s)) - 0.15 * dimple * s
-    b.f["height"] += rng.uniform(0.5, 0.9) * R * dome * w
-    b.f["gloss"] = np.maximum(b.f["gloss"], w * (0.45 + 0.35 * raw))
+    bumps = rng.uniform(0.03, 0.07) * granule                               # mm
+    b.f["height"] += w * (rng.uniform(0.5, 0.9) * R * dome + bumps * smoothstep(0.05, 0.3, s))
+    b.f["gloss"] = np.maximum(b.f["gloss"], w * (0.35 + 0.4 * raw))
     if rng.random() < 0.4:                                     # friable: it has bled
         spot = smoothstep(0.6, 1.2, c.noise(R * 0.8, 1)) * w     # a dark clot or two
         b.crust(spot, 1.0, "haemorrhagic")
     collarette = rng.random() < 0.5
-    if collarette:
-        b.scale(smoothstep(R * 0.08, 0, np.abs(sd + R * 0.03)), 0.5, 0.25, "white")
+    if collarette:   # scale lifted round the base, missing over part of it
+        rim = smoothstep(R * 0.1, 0, np.abs(sd + R * 0.04)) * smoothstep(-0.6, 0.4, c.noise(R * 0.5, 1))
+        b.scale(rim, 0.5, 0.25, "white")
     b.outline(w, 0.4)
     return {"crust_rgb": CRUST_COLOURS["haemorrhagic"], "collarette": collarette,
             "lobulated": lobulated}
