@@ -1218,29 +1218,50 @@ def _pigmented_patch(b, rng, R):
 def _lichen_planus(b, rng, R):
     """Lichen planus: flat-topped, polygonal, shiny papules 1-5 mm across, violaceous
     (poorly oxygenated blood) and dusky with melanin dropped into the dermis (grey-brown,
-    near black on dark skin), crossed by fine white lines (Wickham's striae), grouped
-    and often merging into plaques."""
+    near black on dark skin), crossed by a fine white lace (Wickham's striae), grouped
+    and often merging into plaques. Papules differ: fresher ones are more violet, older
+    ones browner, and none is one even colour."""
     c = b.c
     confluent = rng.random() < 0.4
     n = int(rng.integers(8, 40))
+    mottle = c.noise(max(0.4, R / 20), 2)                   # uneven colour within papules
     for p in arrange(c, "grouped", n, R * 1.1, R * 0.06):
         r = rng.uniform(0.6, 2.5) * (1.6 if confluent else 1.0)
-        # polygonal: a few straight-ish sides, not a star's points
-        sd = c.shape("round", r, centre=p, aspect=rng.uniform(0.7, 1.0), irregular=0.2, warp=0.03)
+        sd = _polygon(c, p, r, int(rng.integers(5, 8)), rng)
         w = b.weight(sd, r * 0.15)
-        b.erythema(w, rng.uniform(2.0, 3.5), oxygen=0.45, stipple=INFLAMED)
+        age = rng.uniform(0, 1)                                   # violet -> brown
+        b.erythema(w * (1 + 0.2 * mottle), rng.uniform(2.0, 3.5) * (1 - 0.5 * age), oxygen=0.45,
+                   stipple=INFLAMED)
         b.f["melanin"] *= 1 + rng.uniform(0.1, 0.4) * w
-        b.f["dermal_melanin"] += w * rng.uniform(0.005, 0.02)
+        # (the most of it where papules merge, not their sum: that turned plaques blue-black)
+        b.f["dermal_melanin"] = np.maximum(b.f["dermal_melanin"], w * rng.uniform(0.005, 0.02) * (0.7 + 0.5 * age))
         # flat-topped; merging papules make one plateau, not stacked ones
-        b.f["height"] = np.maximum(b.f["height"], 0.12 * smoothstep(-r * 0.05, r * 0.25, sd))
+        b.f["height"] = np.maximum(b.f["height"], 0.12 * smoothstep(-r * 0.05, r * 0.35, sd))
         # shiny, not a mirror: a flat plaque facing a flash at 0.25 turned silver-white
         b.f["gloss"] = np.maximum(b.f["gloss"], 0.15 * w)
         b.f["detail"] *= 1 - 0.35 * w
         b.outline(w, 0.35, instance=1 if confluent else None)
-    cover = np.clip(b.f["height"] / 0.12, 0, 1)
-    striae = (1 - smoothstep(0.0, 0.12, np.abs(c.noise(max(0.5, R / 25), 1)))) * cover
-    b.f["scale"] = np.maximum(b.f["scale"], 0.45 * striae)
+    cover = smoothstep(0.02, 0.08, b.f["height"])
+    # Wickham's striae: a lace of thin grey-white lines 0.5-1.5 mm apart over parts of
+    # the papules (until 2026-12-08 the zero crossings of a noise: white scratches)
+    wall, _, _ = b.cells(float(np.clip(R / 25, 0.5, 1.5)))
+    lace = (1 - smoothstep(0.0, 0.07, wall)) * smoothstep(-0.6, 0.8, c.noise(max(1.0, R / 8), 2))
+    b.f["scale"] = np.maximum(b.f["scale"], rng.uniform(0.3, 0.5) * lace * cover)
     return {"arrangement": "confluent" if confluent else "grouped", "scale_rgb": SCALE_COLOURS["white"]}
+
+
+def _polygon(c, centre, r, sides, rng):
+    """Signed distance (mm, > 0 inside) of an angular papule: a convex polygon of
+    ``sides`` sides about ``r`` from its centre, each turned and set a little apart from
+    the regular one's, its corners rounded off towards a circle and its edges wavering
+    (a regular polygon with sharp corners read as a crystal)."""
+    dx, dy = c.x - centre[0], c.y - centre[1]
+    base = rng.uniform(0, 2 * np.pi)
+    sd = np.full(dx.shape, np.inf, np.float32)
+    for i in range(sides):
+        phi = base + 2 * np.pi * (i + rng.uniform(-0.3, 0.3)) / sides
+        np.minimum(sd, r * rng.uniform(0.75, 1.05) - (dx * np.cos(phi) + dy * np.sin(phi)), out=sd)
+    return 0.6 * sd + 0.4 * (0.95 * r - np.hypot(dx, dy)) + 0.03 * r * c.noise(r / 2, 1)
 
 
 def _inflammatory_patch(b, rng, R):
