@@ -1408,7 +1408,9 @@ def _keloid(b, rng, R):
     rise = min(rng.uniform(1.0, 4.0), 0.6 * band)
     b.f["height"] += rise * lumps * smoothstep(0.0, 0.9, dome(sd > 0)) \
         * smoothstep(-0.08 * top, 0.1 * top, sd)
-    b.f["gloss"] = np.maximum(b.f["gloss"], rng.uniform(0.12, 0.25) * w)
+    # taut and shiny (0.12-0.25 until 2026-12-08: matte putty; 0.3-0.5 mirrored a flash
+    # over the whole flat top)
+    b.f["gloss"] = np.maximum(b.f["gloss"], rng.uniform(0.2, 0.35) * w)
     b.f["detail"] *= 1 - 0.85 * w
     b.mix("scatter", w, rng.uniform(1.05, 1.25))            # dense collagen
     active = rng.random() < 0.45
