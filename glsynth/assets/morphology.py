@@ -1053,14 +1053,14 @@ def _pyogenic_granuloma(b, rng, R):
     gran_mm = float(np.clip(R * rng.uniform(0.06, 0.12), 0.3, 0.8))
     granule = smoothstep(-0.5, 1.2, c.noise(gran_mm, 1))
     gran_fill = smoothstep(-1.0, 1.0, 0.6 * c.noise(gran_mm, 1) + 0.8 * granule - 0.4)
+    texture = (0.8 + 0.4 * gran_fill) * (0.85 + 0.15 * granule)
     raw = smoothstep(-0.4, 0.6, c.noise(R * 0.4, 2)) * rng.uniform(0.5, 1.0)   # eroded surface
     b.mix("epidermis", w, rng.uniform(0.3, 0.6))               # stretched thin over the dome
     b.erode(w * raw, 0.0)
     b.f["blood_add"] += w * ((rng.uniform(0.45, 0.75) - ERODED_BLOOD * raw) * (0.75 + 0.5 * shade)
-                             * (1 + 0.2 * dimple) * (1 - 0.6 * septa) * (0.8 + 0.4 * gran_fill)
-                             * (0.85 + 0.15 * granule))
+                             * (1 + 0.2 * dimple) * (1 - 0.6 * septa) * texture)
     b.mix("oxygen", w, rng.uniform(0.8, 0.92) - 0.35 * shade * rng.uniform(0.4, 1.0) - 0.1 * dimple
-          - 0.1 * (1 - gran_fill))
+          + 0.1 * (gran_fill - 0.5))
     b.mix("scatter", w, rng.uniform(0.08, 0.2) + 0.6 * septa)   # vessels, little collagen
     b.f["melanin"] *= 1 - 0.8 * w                              # the epidermis over it is thin
     b.f["detail"] *= 1 - 0.85 * w                              # stretched smooth
@@ -1236,7 +1236,7 @@ def _lichen_planus(b, rng, R):
         # (the most of it where papules merge, not their sum: that turned plaques blue-black)
         b.f["dermal_melanin"] = np.maximum(b.f["dermal_melanin"], w * rng.uniform(0.005, 0.02) * (0.7 + 0.5 * age))
         # flat-topped; merging papules make one plateau, not stacked ones
-        b.f["height"] = np.maximum(b.f["height"], 0.12 * smoothstep(-r * 0.05, r * 0.35, sd))
+        b.f["height"] = np.maximum(b.f["height"], 0.12 * smoothstep(-r * 0.05, r * 0.25, sd))
         # shiny, not a mirror: a flat plaque facing a flash at 0.25 turned silver-white
         b.f["gloss"] = np.maximum(b.f["gloss"], 0.15 * w)
         b.f["detail"] *= 1 - 0.35 * w
