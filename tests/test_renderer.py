@@ -47,7 +47,9 @@ def test_depth_matches_closed_form(renderer, rng, shape, w):
     gl_face, gl_depth = out["face_id"][rows, cols], out["depth"][rows, cols]
     # Where two faces meet, the rasteriser's fixed-point edge test may give the pixel to
     # the neighbour: allowed only when the neighbour holds a point within 1/64 pixel,
-    # and the depth must then be exact on the neighbour's plane.
+    # and the depth must then be that of the neighbour's plane within that 1/64 pixel
+    # (on a face seen near edge-on, that span is wider than 1e-4 of the depth: 1.2e-4
+    # at w=10, test seed 1615375841, where every other sample was within 5e-7).
     other = np.isfinite(depth) & (gl_face != face)
     near_edge = np.zeros(len(rows), bool)
     for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1)):
@@ -58,7 +60,11 @@ def test_depth_matches_closed_form(renderer, rng, shape, w):
     plane_depth, _ = ray_face_depth(mesh, cam, rows, cols, np.maximum(gl_face, 0))
     expected = np.where(other, plane_depth, depth)
     ok = np.isfinite(depth)
-    rel = np.abs(gl_depth[ok] - expected[ok]) / expected[ok]
+    span = np.zeros(len(rows))
+    for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        shifted, _ = ray_face_depth(mesh, cam, rows + dr / 64, cols + dc / 64, np.maximum(gl_face, 0))
+        span = np.maximum(span, np.where(other, np.abs(shifted - plane_depth), 0.0))
+    rel = (np.abs(gl_depth[ok] - expected[ok]) - span[ok]) / expected[ok]
     assert rel.max() <= 1e-4, f"w={w}: max relative depth error {rel.max():.2e}"
     assert (out["depth"][out["face_id"] < 0] == -1).all()
 
