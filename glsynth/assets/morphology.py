@@ -1230,8 +1230,10 @@ def _lichen_planus(b, rng, R):
         sd = _polygon(c, p, r, int(rng.integers(5, 8)), rng)
         w = b.weight(sd, r * 0.15)
         age = rng.uniform(0, 1)                                   # violet -> brown
-        b.erythema(w * (1 + 0.2 * mottle), rng.uniform(2.0, 3.5) * (1 - 0.5 * age), oxygen=0.45,
-                   stipple=INFLAMED)
+        before = b.f["blood_add"].copy()
+        b.erythema(w, rng.uniform(2.0, 3.5) * (1 - 0.5 * age), oxygen=0.45, stipple=INFLAMED)
+        # (the mottle on the blood it adds: on its weight it also left the oxygen short of 0.45)
+        b.f["blood_add"] = before + (b.f["blood_add"] - before) * np.clip(1 + 0.2 * mottle, 0.5, 1.5)
         b.f["melanin"] *= 1 + rng.uniform(0.1, 0.4) * w
         # (the most of it where papules merge, not their sum: that turned plaques blue-black)
         b.f["dermal_melanin"] = np.maximum(b.f["dermal_melanin"], w * rng.uniform(0.005, 0.02) * (0.7 + 0.5 * age))
