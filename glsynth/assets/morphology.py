@@ -1225,15 +1225,13 @@ def _lichen_planus(b, rng, R):
     confluent = rng.random() < 0.4
     n = int(rng.integers(8, 40))
     mottle = c.noise(max(0.4, R / 20), 2)                   # uneven colour within papules
+    skin_blood = b.f["blood_add"].copy()
     for p in arrange(c, "grouped", n, R * 1.1, R * 0.06):
         r = rng.uniform(0.6, 2.5) * (1.6 if confluent else 1.0)
         sd = _polygon(c, p, r, int(rng.integers(5, 8)), rng)
         w = b.weight(sd, r * 0.15)
         age = rng.uniform(0, 1)                                   # violet -> brown
-        before = b.f["blood_add"].copy()
         b.erythema(w, rng.uniform(2.0, 3.5) * (1 - 0.5 * age), oxygen=0.45, stipple=INFLAMED)
-        # (the mottle on the blood it adds: on its weight it also left the oxygen short of 0.45)
-        b.f["blood_add"] = before + (b.f["blood_add"] - before) * np.clip(1 + 0.2 * mottle, 0.5, 1.5)
         b.f["melanin"] *= 1 + rng.uniform(0.1, 0.4) * w
         # (the most of it where papules merge, not their sum: that turned plaques blue-black)
         b.f["dermal_melanin"] = np.maximum(b.f["dermal_melanin"], w * rng.uniform(0.005, 0.02) * (0.7 + 0.5 * age))
@@ -1243,6 +1241,9 @@ def _lichen_planus(b, rng, R):
         b.f["gloss"] = np.maximum(b.f["gloss"], 0.15 * w)
         b.f["detail"] *= 1 - 0.35 * w
         b.outline(w, 0.35, instance=1 if confluent else None)
+    # the mottle scales the blood the papules added (on the erythema's weight it also
+    # left their oxygen short of 0.45)
+    b.f["blood_add"] = skin_blood + (b.f["blood_add"] - skin_blood) * np.clip(1 + 0.2 * mottle, 0.5, 1.5)
     cover = smoothstep(0.02, 0.08, b.f["height"])
     # Wickham's striae: a lace of thin grey-white lines 0.5-1.5 mm apart over parts of
     # the papules (until 2026-12-08 the zero crossings of a noise: white scratches)
