@@ -51,19 +51,18 @@ def test_depth_matches_closed_form(renderer, rng, shape, w):
     # (on a face seen near edge-on, that span is wider than 1e-4 of the depth: 1.2e-4
     # at w=10, test seed 1615375841, where every other sample was within 5e-7).
     other = np.isfinite(depth) & (gl_face != face)
+    plane_depth, _ = ray_face_depth(mesh, cam, rows, cols, np.maximum(gl_face, 0))
     near_edge = np.zeros(len(rows), bool)
+    span = np.zeros(len(rows))
     for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         f, _ = _nearest_hits(mesh, cam, rows + dr / 64, cols + dc / 64)
         near_edge |= f == gl_face
-    assert near_edge[other].all(), f"w={w}: pixels given to a face that does not cover them"
-    assert other.mean() < 0.02
-    plane_depth, _ = ray_face_depth(mesh, cam, rows, cols, np.maximum(gl_face, 0))
-    expected = np.where(other, plane_depth, depth)
-    ok = np.isfinite(depth)
-    span = np.zeros(len(rows))
-    for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         shifted, _ = ray_face_depth(mesh, cam, rows + dr / 64, cols + dc / 64, np.maximum(gl_face, 0))
         span = np.maximum(span, np.where(other, np.abs(shifted - plane_depth), 0.0))
+    assert near_edge[other].all(), f"w={w}: pixels given to a face that does not cover them"
+    assert other.mean() < 0.02
+    expected = np.where(other, plane_depth, depth)
+    ok = np.isfinite(depth)
     rel = (np.abs(gl_depth[ok] - expected[ok]) - span[ok]) / expected[ok]
     assert rel.max() <= 1e-4, f"w={w}: max relative depth error {rel.max():.2e}"
     assert (out["depth"][out["face_id"] < 0] == -1).all()

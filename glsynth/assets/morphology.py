@@ -210,6 +210,21 @@ def spots(canvas, centres, radii, irregular=0.15, reach=3.0):
     return np.maximum(sd, -reach * float(np.max(radii))), index
 
 
+def polygon(canvas, centre, radius, sides):
+    """Signed distance (mm, > 0 inside) of an angular papule: a convex polygon of
+    ``sides`` sides about ``radius`` from its centre, each turned and set a little apart
+    from the regular one's, its corners rounded off towards a circle and its edges
+    wavering (a regular polygon with sharp corners read as a crystal)."""
+    c, rng = canvas, canvas.rng
+    dx, dy = c.x - centre[0], c.y - centre[1]
+    base = rng.uniform(0, 2 * np.pi)
+    sd = np.full(dx.shape, np.inf, np.float32)
+    for i in range(sides):
+        phi = base + 2 * np.pi * (i + rng.uniform(-0.3, 0.3)) / sides
+        np.minimum(sd, radius * rng.uniform(0.75, 1.05) - (dx * np.cos(phi) + dy * np.sin(phi)), out=sd)
+    return 0.6 * sd + 0.4 * (0.95 * radius - np.hypot(dx, dy)) + 0.03 * radius * c.noise(radius / 2, 1)
+
+
 def vessel_tree(canvas, starts, headings, width_mm, length_mm, depth=3):
     """Coverage (0..1) of branching vessels: from each start (mm) along its heading
     (radians) a vessel ``width_mm`` wide runs ``length_mm`` in three bent steps, then
@@ -1053,12 +1068,12 @@ def _pyogenic_granuloma(b, rng, R):
     gran_mm = float(np.clip(R * rng.uniform(0.06, 0.12), 0.3, 0.8))
     granule = smoothstep(-0.5, 1.2, c.noise(gran_mm, 1))
     gran_fill = smoothstep(-1.0, 1.0, 0.6 * c.noise(gran_mm, 1) + 0.8 * granule - 0.4)
-    texture = (0.8 + 0.4 * gran_fill) * (0.85 + 0.15 * granule)
+    granular_blood = (0.8 + 0.4 * gran_fill) * (0.85 + 0.15 * granule)
     raw = smoothstep(-0.4, 0.6, c.noise(R * 0.4, 2)) * rng.uniform(0.5, 1.0)   # eroded surface
     b.mix("epidermis", w, rng.uniform(0.3, 0.6))               # stretched thin over the dome
     b.erode(w * raw, 0.0)
     b.f["blood_add"] += w * ((rng.uniform(0.45, 0.75) - ERODED_BLOOD * raw) * (0.75 + 0.5 * shade)
-                             * (1 + 0.2 * dimple) * (1 - 0.6 * septa) * texture)
+                             * (1 + 0.2 * dimple) * (1 - 0.6 * septa) * granular_blood)
     b.mix("oxygen", w, rng.uniform(0.8, 0.92) - 0.35 * shade * rng.uniform(0.4, 1.0) - 0.1 * dimple
           + 0.1 * (gran_fill - 0.5))
     b.mix("scatter", w, rng.uniform(0.08, 0.2) + 0.6 * septa)   # vessels, little collagen
@@ -1228,7 +1243,7 @@ def _lichen_planus(b, rng, R):
     skin_blood = b.f["blood_add"].copy()
     for p in arrange(c, "grouped", n, R * 1.1, R * 0.06):
         r = rng.uniform(0.6, 2.5) * (1.6 if confluent else 1.0)
-        sd = _polygon(c, p, r, int(rng.integers(5, 8)), rng)
+        sd = polygon(c, p, r, int(rng.integers(5, 8)))
         w = b.weight(sd, r * 0.15)
         age = rng.uniform(0, 1)                                   # violet -> brown
         b.erythema(w, rng.uniform(2.0, 3.5) * (1 - 0.5 * age), oxygen=0.45, stipple=INFLAMED)
@@ -1251,20 +1266,6 @@ def _lichen_planus(b, rng, R):
     lace = (1 - smoothstep(0.0, 0.07, wall)) * smoothstep(-0.6, 0.8, c.noise(max(1.0, R / 8), 2))
     b.f["scale"] = np.maximum(b.f["scale"], rng.uniform(0.3, 0.5) * lace * cover)
     return {"arrangement": "confluent" if confluent else "grouped", "scale_rgb": SCALE_COLOURS["white"]}
-
-
-def _polygon(c, centre, r, sides, rng):
-    """Signed distance (mm, > 0 inside) of an angular papule: a convex polygon of
-    ``sides`` sides about ``r`` from its centre, each turned and set a little apart from
-    the regular one's, its corners rounded off towards a circle and its edges wavering
-    (a regular polygon with sharp corners read as a crystal)."""
-    dx, dy = c.x - centre[0], c.y - centre[1]
-    base = rng.uniform(0, 2 * np.pi)
-    sd = np.full(dx.shape, np.inf, np.float32)
-    for i in range(sides):
-        phi = base + 2 * np.pi * (i + rng.uniform(-0.3, 0.3)) / sides
-        np.minimum(sd, r * rng.uniform(0.75, 1.05) - (dx * np.cos(phi) + dy * np.sin(phi)), out=sd)
-    return 0.6 * sd + 0.4 * (0.95 * r - np.hypot(dx, dy)) + 0.03 * r * c.noise(r / 2, 1)
 
 
 def _inflammatory_patch(b, rng, R):
